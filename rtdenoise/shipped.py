@@ -1,0 +1,27 @@
+"""Files shipped inside the package: demo checkpoints, ONNX models and sample sequences."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+ASSETS_DIR = Path(__file__).resolve().parent / "assets"
+SEQUENCES_DIR = ASSETS_DIR / "sequences"
+MODELS_DIR = ASSETS_DIR / "models"
+
+
+def sample_sequences() -> list[Path]:
+    """The bundled sample sequences, one folder each, sorted by name."""
+    if not SEQUENCES_DIR.is_dir():
+        return []
+    return sorted(p for p in SEQUENCES_DIR.iterdir() if p.is_dir())
+
+
+def demo_model(family: str, suffix: str) -> Path:
+    """Path of the shipped demo model `demo:<family>` (suffix '.pt' or '.onnx')."""
+    path = MODELS_DIR / f"{family}{suffix}"
+    if not path.is_file():
+        available = sorted({p.stem for p in MODELS_DIR.glob("*" + suffix)}) if MODELS_DIR.is_dir() else []
+        raise FileNotFoundError(
+            f"no shipped demo model 'demo:{family}' ({path.name}); available: {available or 'none'}"
+        )
+    return path

@@ -1,0 +1,78 @@
+"""Read and write EXR files with OpenEXR's own Python bindings.
+
+Channels are plain 2-D float32 arrays keyed by their full EXR channel name
+("R", "albedo.G", "ViewLayer.Denoising Albedo.R"). Multi-part files (Blender 5
+multilayer) are flattened: every part's channels go into one dict.
+Writes are atomic: a temp file in the target folder, then a rename.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+
+from .errors import InputError
+
+
+def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """All channels of an EXR file (every part), as contiguous 2-D float32 arrays."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            channels: dict[str, np.ndarray] = {}
+            for part in exr.parts:
+                for name, channel in part.channels.items():
+                    pixels = np.asarray(channel.pixels)
+                    if pixels.ndim != 2:
+                        raise InputError(f"{path}: channel {name!r} has shape {pixels.shape}")
+                    channels[name] = np.ascontiguousarray(pixels, dtype=np.float32)
+    except InputError:
+        raise
+    except Exception as exc:  # OpenEXR raises RuntimeError/OSError for truncated/corrupt files
+        raise InputError(f"{path}: cannot read EXR ({exc})") from exc
+    if not channels:
+        raise InputError(f"{path}: EXR file has no channels")
+    return channels
+
+
+def write_exr(
+    path: str | os.PathLike,
+    channels: dict[str, np.ndarray],
+    *,
+    half: bool = True,
+) -> Path:
+    """Write 2-D channels to a single-part, ZIP-compressed EXR, atomically.
+
+    `half=True` stores float16 (the default for denoised output), else float32.
+    """
+    path = Path(path)
+    if not channels:
+        raise ValueError("write_exr: no channels given")
+    dtype = np.float16 if half else np.float32
+    shapes = {name: np.shape(a) for name, a in channels.items()}
+    first = next(iter(shapes.values()))
+    if len(first) != 2 or any(s != first for s in shapes.values()):
+        raise ValueError(f"write_exr: channels must be 2-D and of one size, got {shapes}")
+    # OpenEXR writes non-contiguous arrays wrong without an error: always copy contiguous.
+    data = {name: np.ascontiguousarray(a, dtype=dtype) for name, a in channels.items()}
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    folder = path.parent
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: output folder is a file")
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.exr", dir=folder)
+    os.close(fd)
+    try:
+        with OpenEXR.File(header, data) as exr:
+            exr.write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
