@@ -1,0 +1,88 @@
+"""`denoise-export`: checkpoint -> one validated ONNX file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+app = typer.Typer(add_completion=False, no_args_is_help=True)
+console = Console()
+err_console = Console(stderr=True)
+
+
+def resolve_checkpoint(spec: str) -> Path:
+    """A checkpoint path, or `demo:<family>` for a checkpoint shipped in the package."""
+    if spec.startswith("demo:"):
+        from rtdenoise.shipped import demo_model
+
+        return demo_model(spec.split(":", 1)[1], ".pt")
+    path = Path(spec)
+    if not path.is_file():
+        raise FileNotFoundError(f"{spec}: no such checkpoint file")
+    return path
+
+
+@app.command()
+def export(
+    checkpoint: Annotated[
+        str, typer.Argument(help="Checkpoint (.pt from denoise-train) or demo:<family>.")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="The .onnx file to write.")],
+    frames: Annotated[
+        int, typer.Option(help="Frames of the validation sequence (state fed back).")
+    ] = 8,
+    size: Annotated[int, typer.Option(help="Validation frame size in pixels (square).")] = 64,
+    tolerance: Annotated[
+        float, typer.Option(help="Max error |ort-torch|/(1+|torch|) accepted on any frame.")
+    ] = 1e-4,
+) -> None:
+    """Export a trained denoiser to ONNX and validate it before writing.
+
+    The network becomes standard ONNX ops; the filter stages become custom ops of the
+    `rtdenoise` domain, each shipped with a model-local function body so that any stock
+    ONNX Runtime runs the file. RepVGG/BatchNorm branches are folded first. The file is
+    written only if ONNX Runtime (fast kernels and portable path) matches PyTorch over a
+    multi-frame sequence with state fed back.
+    """
+    from rtdenoise.export.pipeline import ExportValidationError, export_checkpoint
+
+    try:
+        ckpt = resolve_checkpoint(checkpoint)
+        if output.is_dir():
+            raise ValueError(f"{output}: is a folder; give the .onnx file to write")
+        with console.status(f"exporting {ckpt.name} ..."):
+            report = export_checkpoint(ckpt, output, frames=frames, size=size, tolerance=tolerance)
+    except ExportValidationError as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(1) from exc
+    except (OSError, ValueError, KeyError) as exc:
+        err_console.print(f"[red]error:[/red] {exc}")
+        raise typer.Exit(2) from exc
+
+    summary = Table(title=f"{report.family} -> {output}", show_header=False)
+    summary.add_row("nodes", str(report.nodes))
+    custom = ", ".join(f"{k} x{v}" for k, v in sorted(report.custom_nodes.items()))
+    summary.add_row("custom nodes", custom or "none")
+    summary.add_row("parameters", f"{report.parameters:,}")
+    summary.add_row("size", f"{report.size_bytes / 1024:.1f} KiB")
+    console.print(summary)
+    errors = Table(title=f"validation, {report.frame_size[0]}x{report.frame_size[1]}")
+    errors.add_column("frame", justify="right")
+    paths = list(report.validation.errors)
+    for path in paths:
+        errors.add_column(f"{path} max err", justify="right")
+    n = len(next(iter(report.validation.errors.values())))
+    for i in range(n):
+        errors.add_row(str(i), *(f"{report.validation.errors[p][i]:.2e}" for p in paths))
+    console.print(errors)
+    console.print(
+        f"[green]ok[/green]: max error {report.validation.max_error:.2e} <= {tolerance:g}"
+    )
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,116 @@
+"""checkpoint -> validated .onnx: the whole `denoise-export` job as one function."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import onnx
+from rtdenoise.models.base import DenoiserModel
+from rtdenoise.models.checkpoint import load_checkpoint
+
+from .onnx_export import export_model
+from .validate import ValidationReport, synthetic_frames, validate
+
+
+class ExportValidationError(RuntimeError):
+    """ONNX Runtime disagrees with PyTorch beyond the tolerance: nothing was written."""
+
+
+@dataclass
+class ExportReport:
+    path: Path | None
+    family: str
+    nodes: int
+    custom_nodes: dict[str, int]
+    parameters: int
+    size_bytes: int
+    validation: ValidationReport
+    frame_size: tuple[int, int]
+
+
+def validation_frames(
+    model: DenoiserModel, n: int, size: int = 64
+) -> tuple[list[dict[str, np.ndarray]], str]:
+    """Frames to validate on: a bundled rendered sequence when one is shipped, else synthetic."""
+    from rtdenoise.runtime.sequence import find_frames, read_frame
+
+    from rtdenoise.shipped import sample_sequences
+
+    pad = model.pad_multiple
+    h = w = max(pad, size - size % pad)
+    for seq in sample_sequences():
+        paths = find_frames(seq)
+        frames = [read_frame(p).buffers for p in paths[:n]]
+        if len(frames) < n or not all(k in frames[0] for k in model.inputs):
+            continue
+        fh, fw = frames[0]["color"].shape[-2:]
+        if fh < h or fw < w:
+            continue
+        cropped = [{k: np.ascontiguousarray(f[k][:, :h, :w]) for k in model.inputs} for f in frames]
+        return cropped, str(seq)
+    return synthetic_frames(model.inputs, n, h, w), "synthetic"
+
+
+def count_nodes(proto: onnx.ModelProto) -> tuple[int, dict[str, int]]:
+    custom: dict[str, int] = {}
+    for node in proto.graph.node:
+        if node.domain == "rtdenoise":
+            custom[node.op_type] = custom.get(node.op_type, 0) + 1
+    return len(proto.graph.node), custom
+
+
+def export_checkpoint(
+    checkpoint: str | os.PathLike,
+    output: str | os.PathLike | None,
+    *,
+    frames: int = 8,
+    size: int = 64,
+    tolerance: float = 1e-4,
+) -> ExportReport:
+    """Load, export, validate over `frames` frames, write `output` atomically (None: don't).
+
+    Raises ExportValidationError (and writes nothing) when ORT and PyTorch disagree.
+    """
+    model, _meta = load_checkpoint(checkpoint)
+    model.eval()
+    proto = export_model(model)
+    data = proto.SerializeToString()
+    seq, _source = validation_frames(model, frames, size)
+    report = validate(model, data, seq, tolerance=tolerance)
+    nodes, custom = count_nodes(proto)
+    params = sum(int(np.prod(t.dims)) for t in proto.graph.initializer)
+    result = ExportReport(
+        path=None,
+        family=model.family,
+        nodes=nodes,
+        custom_nodes=custom,
+        parameters=params,
+        size_bytes=len(data),
+        validation=report,
+        frame_size=tuple(seq[0]["color"].shape[-2:]) if "color" in seq[0] else (size, size),
+    )
+    if not report.passed:
+        raise ExportValidationError(
+            f"ONNX Runtime disagrees with PyTorch: max error {report.max_error:.3g} > "
+            f"tolerance {tolerance:.3g}; {output} not written"
+        )
+    if output is not None:
+        result.path = write_atomic(Path(output), data)
+    return result
+
+
+def write_atomic(path: Path, data: bytes) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
