@@ -95,7 +95,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
             opset_version=OPSET,
             input_names=wrapper.input_names(),
             output_names=wrapper.output_names(),
-            dynamic_shapes=_dynamic_shapes(deployed),
+            dynamic_shapes=(_dynamic_shapes(deployed),),  # one entry: the *args tuple
             custom_translation_table=onnx_ops.custom_translation_table(),
             optimize=True,
             verbose=False,

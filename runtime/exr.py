@@ -36,9 +36,36 @@ def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
         raise
     except Exception as exc:  # OpenEXR raises RuntimeError/OSError for truncated/corrupt files
         raise InputError(f"{path}: cannot read EXR ({exc})") from exc
+    # OpenEXR 3.5 drops the parts whose pixels it cannot read (truncated file) with only a
+    # printed warning: compare with the channels the headers list.
+    lost = sorted(set(read_exr_header(path)) - set(channels))
+    if lost:
+        raise InputError(
+            f"{path}: cannot read EXR (truncated or corrupt: no pixel data for {len(lost)} "
+            f"channels, e.g. {lost[0]!r})"
+        )
     if not channels:
         raise InputError(f"{path}: EXR file has no channels")
     return channels
+
+
+def read_exr_header(path: str | os.PathLike) -> dict[str, tuple[int, int]]:
+    """Channel name -> (height, width) of every part, reading headers only (no pixels)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True, header_only=True) as exr:
+            sizes: dict[str, tuple[int, int]] = {}
+            for part in exr.parts:
+                (x0, y0), (x1, y1) = (tuple(int(v) for v in c) for c in part.header["dataWindow"])
+                for channel in part.header["channels"]:
+                    sizes[channel.name] = (y1 - y0 + 1, x1 - x0 + 1)
+    except Exception as exc:  # OpenEXR raises RuntimeError for truncated/corrupt headers
+        raise InputError(f"{path}: cannot read EXR ({exc})") from exc
+    if not sizes:
+        raise InputError(f"{path}: EXR file has no channels")
+    return sizes
 
 
 def write_exr(

@@ -1,0 +1,57 @@
+"""The denoising backend `denoise-run` drives: anything with `process` and `reset`.
+
+`PassThrough` (``--model none``) returns the noisy colour unchanged: a diagnostic of
+the I/O path, progress, metrics and previews. Every other model spec (an .onnx path
+or ``demo:<family>``) loads `rtdenoise.runtime.Denoiser`, imported lazily.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .errors import InputError
+
+
+@runtime_checkable
+class Backend(Protocol):
+    """One stateful denoiser: frames in order, `reset()` at a cut."""
+
+    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Denoise one frame: canonical (C, H, W) buffers -> (3, H, W) linear RGB."""
+        ...
+
+    def reset(self) -> None:
+        """Forget the history; the next frame starts a new sequence."""
+        ...
+
+
+class PassThrough:
+    """``--model none``: the output is the input `color`, copied."""
+
+    name = "none"
+    required_buffers: tuple[str, ...] = ("color",)
+
+    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
+        if "color" not in buffers:
+            raise InputError("pass-through needs the 'color' buffer")
+        return np.array(buffers["color"], dtype=np.float32, copy=True)
+
+    def reset(self) -> None:
+        pass
+
+
+def load_backend(model: str, *, portable: bool = False, threads: int | None = None) -> Backend:
+    """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
+
+    portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
+    """
+    if model.strip().lower() == "none":
+        return PassThrough()
+    try:
+        from .denoiser import Denoiser
+    except ImportError as exc:
+        raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
+    return Denoiser(model, fast_kernels=not portable, threads=threads)

@@ -1,0 +1,296 @@
+"""The ONNX contract v1 (design.md s.3): parse and validate a model's metadata and graph I/O.
+
+A contract model has float32 inputs `color`, `albedo`, ... ([1, C, H, W]), a scalar
+`reset`, one `state.<name>` per temporal tensor ([1, C, H/scale, W/scale]), and
+outputs `output` ([1, 3, H, W]) plus `state_next.<name>` for every state input. Its
+`metadata_props` say which buffers it reads, its state and its pad multiple.
+`parse_contract` checks all of it and returns a `Contract`; anything off raises a
+one-line `ContractError` naming the model and the problem.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from .errors import InputError
+
+CONTRACT_VERSION = 1
+PREFIX = "rtdenoise."
+KEY_CONTRACT = PREFIX + "contract"
+KEY_FAMILY = PREFIX + "family"
+KEY_CONFIG = PREFIX + "config"
+KEY_INPUTS = PREFIX + "inputs"
+KEY_STATE = PREFIX + "state"
+KEY_PAD = PREFIX + "pad_multiple"
+KEY_ONLINE = PREFIX + "online"
+REQUIRED_KEYS = (KEY_CONTRACT, KEY_FAMILY, KEY_CONFIG, KEY_INPUTS, KEY_STATE, KEY_PAD)
+
+RESET = "reset"
+OUTPUT = "output"
+STATE_IN = "state."
+STATE_OUT = "state_next."
+FLOAT = "tensor(float)"
+
+# Canonical buffers -> channel count (design.md s.3; mirrors models.base.BUFFER_CHANNELS, which
+# imports torch). `samples` is per-sample data, [1, S, C, H, W] with S and C model-defined.
+BUFFER_CHANNELS: dict[str, int | None] = {
+    "color": 3,
+    "color_b": 3,
+    "albedo": 3,
+    "normal": 3,
+    "depth": 1,
+    "motion": 2,
+    "samples": None,
+}
+BUFFER_RANK: dict[str, int] = {name: 4 for name in BUFFER_CHANNELS} | {"samples": 5}
+
+Dim = int | str | None
+
+
+class ContractError(InputError):
+    """The model does not obey the rtdenoise ONNX contract (one-line message)."""
+
+
+@dataclass(frozen=True)
+class TensorInfo:
+    """A graph input or output as ONNX Runtime reports it (`NodeArg`)."""
+
+    name: str
+    shape: tuple[Dim, ...]
+    type: str = FLOAT
+
+
+@dataclass(frozen=True)
+class StateSpec:
+    """One temporal tensor: `channels` x (H / scale) x (W / scale) (mirrors models.base)."""
+
+    name: str
+    channels: int
+    scale: int = 1
+
+    @property
+    def input_name(self) -> str:
+        return STATE_IN + self.name
+
+    @property
+    def output_name(self) -> str:
+        return STATE_OUT + self.name
+
+    def shape(self, height: int, width: int) -> tuple[int, int, int, int]:
+        """[1, C, H/scale, W/scale] for padded H, W."""
+        return (1, self.channels, height // self.scale, width // self.scale)
+
+
+@dataclass(frozen=True)
+class BufferSpec:
+    """One frame buffer the model reads: (C, H, W), or (S, C, H, W) for rank-5 `samples`."""
+
+    name: str
+    rank: int
+    channels: int | None
+    graph_shape: tuple[Dim, ...]
+
+    @property
+    def expected(self) -> str:
+        """Human-readable expected shape, e.g. '(3, H, W)'."""
+        c = "C" if self.channels is None else str(self.channels)
+        return f"({c}, H, W)" if self.rank == 4 else f"(S, {c}, H, W)"
+
+
+@dataclass(frozen=True)
+class Contract:
+    """What the executor needs to drive a contract model."""
+
+    version: int
+    family: str
+    config: dict[str, Any]
+    buffers: tuple[BufferSpec, ...]
+    note: str
+    state: tuple[StateSpec, ...]
+    pad_multiple: int
+    has_reset: bool
+    output_shape: tuple[Dim, ...]
+    online: str | None = None
+    metadata: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def buffer_names(self) -> tuple[str, ...]:
+        return tuple(b.name for b in self.buffers)
+
+
+def _static(dim: Dim) -> int | None:
+    return dim if isinstance(dim, int) and not isinstance(dim, bool) and dim > 0 else None
+
+
+def _pos_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 1
+
+
+def parse_contract(
+    metadata: Mapping[str, str],
+    inputs: Sequence[TensorInfo],
+    outputs: Sequence[TensorInfo],
+    *,
+    source: str = "model",
+) -> Contract:
+    """Validate metadata + graph I/O against contract v1; raise ContractError on any violation."""
+
+    def fail(msg: str) -> ContractError:
+        return ContractError(f"{source}: not an rtdenoise contract-v1 model: {msg}")
+
+    missing = [k for k in REQUIRED_KEYS if k not in metadata]
+    if missing:
+        have = sorted(k for k in metadata if k.startswith(PREFIX))
+        raise fail(f"metadata key {missing[0]!r} missing (has {have or 'no rtdenoise.* keys'})")
+    version = metadata[KEY_CONTRACT].strip()
+    if version != str(CONTRACT_VERSION):
+        raise fail(f"{KEY_CONTRACT} is {version!r}, this runtime reads version {CONTRACT_VERSION}")
+    family = metadata[KEY_FAMILY].strip()
+    if not family:
+        raise fail(f"{KEY_FAMILY} is empty")
+
+    def load(key: str) -> Any:
+        try:
+            return json.loads(metadata[key])
+        except json.JSONDecodeError as exc:
+            raise fail(f"{key} is not valid JSON ({exc.msg} at char {exc.pos})") from None
+
+    config = load(KEY_CONFIG)
+    if not isinstance(config, dict):
+        raise fail(f"{KEY_CONFIG} must be a JSON object, got {type(config).__name__}")
+    spec_inputs = load(KEY_INPUTS)
+    names = spec_inputs.get("buffers") if isinstance(spec_inputs, dict) else None
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise fail(f'{KEY_INPUTS} must be {{"buffers": [names...], "note": "..."}}')
+    if len(set(names)) != len(names):
+        raise fail(f"{KEY_INPUTS} lists a buffer twice: {names}")
+    note = spec_inputs.get("note", "")
+    note = note if isinstance(note, str) else json.dumps(note)
+    try:
+        pad = int(metadata[KEY_PAD].strip())
+    except ValueError:
+        raise fail(f"{KEY_PAD} is {metadata[KEY_PAD]!r}, not an integer") from None
+    if pad < 1:
+        raise fail(f"{KEY_PAD} must be >= 1, got {pad}")
+    state = _parse_state(load(KEY_STATE), pad, fail)
+
+    graph_in = {t.name: t for t in inputs}
+    graph_out = {t.name: t for t in outputs}
+    for t in (*inputs, *outputs):
+        if t.type != FLOAT:
+            raise fail(f"graph tensor {t.name!r} has type {t.type}, the contract needs float32")
+
+    buffers = []
+    for name in names:
+        if name not in BUFFER_CHANNELS:
+            raise fail(
+                f"{KEY_INPUTS} names unknown buffer {name!r} (known: {list(BUFFER_CHANNELS)})"
+            )
+        if name not in graph_in:
+            raise fail(f"buffer {name!r} is listed in {KEY_INPUTS} but is not a graph input")
+        buffers.append(_buffer_spec(name, graph_in[name].shape, fail))
+
+    state_names = {s.input_name for s in state}
+    for name in graph_in:
+        if name in names or name == RESET or name in state_names:
+            continue
+        if name.startswith(STATE_IN):
+            raise fail(f"graph input {name!r} is not listed in {KEY_STATE}")
+        raise fail(f"graph input {name!r} is neither a listed buffer, 'reset' nor a state input")
+    for s in state:
+        if s.input_name not in graph_in:
+            raise fail(
+                f"state {s.name!r} is listed in {KEY_STATE} but {s.input_name!r} is no input"
+            )
+        if s.output_name not in graph_out:
+            raise fail(f"state input {s.input_name!r} has no matching output {s.output_name!r}")
+        for t in (graph_in[s.input_name], graph_out[s.output_name]):
+            _check_4d(t, s.channels, f"state {s.name!r} ({s.channels} channels)", fail)
+
+    has_reset = RESET in graph_in
+    if has_reset and len(graph_in[RESET].shape) != 0:
+        raise fail(
+            f"'reset' must be a rank-0 scalar, graph has shape {list(graph_in[RESET].shape)}"
+        )
+    if state and not has_reset:
+        raise fail("the model has state but no 'reset' input")
+
+    if OUTPUT not in graph_out:
+        raise fail(f"no graph output 'output' (outputs: {list(graph_out)})")
+    _check_4d(graph_out[OUTPUT], 3, "'output' (3 channels)", fail)
+    for name in graph_out:
+        if name == OUTPUT:
+            continue
+        if not name.startswith(STATE_OUT):
+            raise fail(f"graph output {name!r} is neither 'output' nor a state_next.* output")
+        if STATE_IN + name[len(STATE_OUT) :] not in state_names:
+            raise fail(f"graph output {name!r} has no matching listed state input")
+
+    return Contract(
+        version=CONTRACT_VERSION,
+        family=family,
+        config=config,
+        buffers=tuple(buffers),
+        note=note,
+        state=state,
+        pad_multiple=pad,
+        has_reset=has_reset,
+        output_shape=tuple(graph_out[OUTPUT].shape),
+        online=metadata.get(KEY_ONLINE),
+        metadata=dict(metadata),
+    )
+
+
+def _parse_state(raw: Any, pad: int, fail) -> tuple[StateSpec, ...]:
+    if not isinstance(raw, list):
+        raise fail(f"{KEY_STATE} must be a JSON list of {{name, channels, scale}}")
+    specs: list[StateSpec] = []
+    for item in raw:
+        if not isinstance(item, dict) or not isinstance(item.get("name"), str) or not item["name"]:
+            raise fail(f"{KEY_STATE} entry {item!r} needs a non-empty 'name'")
+        channels, scale = item.get("channels"), item.get("scale", 1)
+        if not _pos_int(channels) or not _pos_int(scale):
+            raise fail(f"state {item['name']!r}: channels and scale must be integers >= 1")
+        if pad % scale:
+            raise fail(f"{KEY_PAD} {pad} is not a multiple of state {item['name']!r} scale {scale}")
+        specs.append(StateSpec(item["name"], channels, scale))
+    if len({s.name for s in specs}) != len(specs):
+        raise fail(f"{KEY_STATE} lists a state name twice")
+    return tuple(specs)
+
+
+def _buffer_spec(name: str, shape: tuple[Dim, ...], fail) -> BufferSpec:
+    rank = BUFFER_RANK[name]
+    if len(shape) != rank:
+        raise fail(f"buffer {name!r} has graph rank {len(shape)}, the contract needs {rank}")
+    if _static(shape[0]) not in (None, 1):
+        raise fail(f"buffer {name!r} has batch size {shape[0]}, the contract needs 1")
+    canonical = BUFFER_CHANNELS[name]
+    graph_c = _static(shape[rank - 3])
+    if canonical is not None and graph_c is not None and graph_c != canonical:
+        raise fail(f"buffer {name!r} has {graph_c} channels in the graph, canonical is {canonical}")
+    return BufferSpec(name, rank, canonical if canonical is not None else graph_c, tuple(shape))
+
+
+def _check_4d(t: TensorInfo, channels: int, what: str, fail) -> None:
+    if len(t.shape) != 4:
+        raise fail(f"{t.name!r} has rank {len(t.shape)}, {what} needs [1, C, H, W]")
+    if _static(t.shape[0]) not in (None, 1):
+        raise fail(f"{t.name!r} has batch size {t.shape[0]}, the contract needs 1")
+    if _static(t.shape[1]) not in (None, channels):
+        raise fail(f"{t.name!r} has {t.shape[1]} channels in the graph, {what}")
+
+
+def contract_from_session(session: Any, *, source: str = "model") -> Contract:
+    """Read the contract of an `onnxruntime.InferenceSession`."""
+
+    def info(args) -> list[TensorInfo]:
+        return [TensorInfo(a.name, tuple(a.shape or ()), a.type) for a in args]
+
+    metadata = dict(session.get_modelmeta().custom_metadata_map)
+    return parse_contract(
+        metadata, info(session.get_inputs()), info(session.get_outputs()), source=source
+    )

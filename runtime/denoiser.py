@@ -1,0 +1,532 @@
+"""The stateful executor: one ONNX Runtime session driving any contract-v1 model (design.md s.6).
+
+Per frame: validate the buffers (names, shapes; NaN/Inf replaced by 0 and counted),
+replicate-pad H, W to the model's `pad_multiple`, run, feed `state_next.*` back as
+`state.*`, crop the output. State is zero-filled and `reset` = 1 on the first frame,
+after `reset()` and when the resolution changes.
+
+State lives in two ping-pong buffers per tensor bound through ONNX Runtime's IO
+binding: frame t reads buffer A and writes buffer B, frame t+1 the reverse. With a
+GPU execution provider the buffers are device memory, so state never crosses to the
+host; on CPU they are numpy arrays the session reads and writes in place.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+import os
+import sys
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from .contract import (
+    OUTPUT,
+    RESET,
+    BufferSpec,
+    Contract,
+    ContractError,
+    StateSpec,
+    contract_from_session,
+)
+from .errors import InputError
+
+ModelSource = str | os.PathLike | bytes
+Provider = str | tuple[str, dict[str, Any]]
+
+_PROVIDER_ALIASES = {
+    "cpu": "CPUExecutionProvider",
+    "cuda": "CUDAExecutionProvider",
+    "tensorrt": "TensorrtExecutionProvider",
+    "trt": "TensorrtExecutionProvider",
+    "dml": "DmlExecutionProvider",
+    "directml": "DmlExecutionProvider",
+    "coreml": "CoreMLExecutionProvider",
+    "openvino": "OpenVINOExecutionProvider",
+}
+# Execution provider -> OrtValue device type used to keep the state on the device.
+_DEVICE_OF_PROVIDER = {
+    "CUDAExecutionProvider": "cuda",
+    "TensorrtExecutionProvider": "cuda",
+    "DmlExecutionProvider": "dml",
+}
+_RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
+
+
+def resolve_model(spec: str | os.PathLike) -> Path:
+    """Path of a model given as `demo:<family>` (a shipped demo) or a plain .onnx path."""
+    text = os.fspath(spec)
+    if text.startswith("demo:"):
+        from rtdenoise.shipped import demo_model
+
+        try:
+            return demo_model(text[len("demo:") :], ".onnx")
+        except FileNotFoundError as exc:
+            raise InputError(str(exc)) from None
+    path = Path(text).expanduser()
+    if not path.exists():
+        raise InputError(f"{path}: no such model file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected an .onnx model file")
+    if path.suffix.lower() in (".pt", ".pth"):
+        raise InputError(f"{path}: is a PyTorch checkpoint; export it first (denoise-export)")
+    return path
+
+
+def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provider]:
+    """Execution providers for the session: aliases expanded, availability checked, CPU last."""
+    if providers is None:
+        return ["CPUExecutionProvider"]
+    if isinstance(providers, str):
+        providers = [providers]
+    available = ort.get_available_providers()
+    resolved: list[Provider] = []
+    for item in providers:
+        name, options = item if isinstance(item, tuple) else (item, None)
+        name = _PROVIDER_ALIASES.get(name.lower(), name)
+        if name not in available:
+            raise InputError(
+                f"execution provider {name!r} is not available in this onnxruntime "
+                f"{ort.__version__} (available: {', '.join(available)}); CUDA/TensorRT need "
+                "the onnxruntime-gpu package, DirectML onnxruntime-directml"
+            )
+        resolved.append((name, options) if options else name)
+    if "CPUExecutionProvider" not in [p if isinstance(p, str) else p[0] for p in resolved]:
+        resolved.append("CPUExecutionProvider")
+    return resolved
+
+
+@contextlib.contextmanager
+def _torch_hidden():
+    """Hide torch while importing: onnxruntime-extensions 0.15.2 imports torch when it is
+    installed (for a Whisper converter: `cvt.py`), ~5 s and ~1 GB the runtime must not pay."""
+    if "torch" in sys.modules:  # already imported by the host: nothing to save
+        yield
+        return
+    sys.modules["torch"] = None  # type: ignore[assignment]  # `import torch` -> ImportError
+    try:
+        yield
+    finally:
+        if "torch" in sys.modules and sys.modules["torch"] is None:
+            del sys.modules["torch"]
+
+
+def _register_fast_kernels(options: ort.SessionOptions) -> bool:
+    """Register the numba kernels of the rtdenoise custom ops; False (with a warning) if absent."""
+    try:
+        with _torch_hidden():
+            fastops = importlib.import_module(".fastops", __package__)
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.split(".")[-1] in ("fastops", "onnxruntime_extensions", "numba"):
+            warnings.warn(
+                f"fast kernels unavailable ({exc}); custom ops run on the portable path",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            return False
+        raise
+    fastops.register_fast_kernels(options)
+    return True
+
+
+def _count_nonfinite(a: np.ndarray) -> int:
+    """Number of NaN/Inf values; one cheap pass (a sum) when there are none."""
+    if a.dtype.kind != "f":
+        return 0
+    with np.errstate(over="ignore", invalid="ignore"):  # a finite sum may overflow: recount
+        if np.isfinite(a.sum()):
+            return 0
+    return int(a.size - np.count_nonzero(np.isfinite(a)))
+
+
+def _pad_edge(a: np.ndarray, hp: int, wp: int) -> np.ndarray:
+    """Replicate-pad the last two axes of `a` to (hp, wp) (bottom and right); `a` if no pad."""
+    h, w = a.shape[-2:]
+    if (h, w) == (hp, wp):
+        return a
+    out = np.empty(a.shape[:-2] + (hp, wp), np.float32)
+    out[..., :h, :w] = a
+    out[..., :h, w:] = a[..., :, w - 1 : w]
+    out[..., h:, :] = out[..., h - 1 : h, :]
+    return out
+
+
+class _Slot:
+    """One state tensor's storage: an OrtValue, with its host numpy array when on CPU."""
+
+    def __init__(self, shape: tuple[int, ...], device: tuple[str, int] | None):
+        zeros = np.zeros(shape, np.float32)
+        if device is None:
+            self.host: np.ndarray | None = zeros
+            self.value = ort.OrtValue.ortvalue_from_numpy(zeros)  # shares `zeros`' memory
+        else:
+            self.host = None
+            self.value = ort.OrtValue.ortvalue_from_numpy(zeros, device[0], device[1])
+        self.shape = shape
+
+    def zero(self) -> None:
+        if self.host is not None:
+            self.host.fill(0.0)
+        else:
+            self.value.update_inplace(np.zeros(self.shape, np.float32))
+
+    def sanitize(self) -> int:
+        """Replace NaN/Inf by 0 in place; return how many there were."""
+        host = self.host if self.host is not None else self.value.numpy()
+        bad = _count_nonfinite(host)
+        if bad:
+            np.nan_to_num(host, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+            if self.host is None:
+                self.value.update_inplace(host)
+        return bad
+
+
+class Denoiser:
+    """Run a contract-v1 ONNX denoiser frame by frame, keeping its temporal state.
+
+    model: a path to an .onnx file, `demo:<family>`, or the serialized model bytes.
+    fast_kernels: register the native (numba) kernels of the rtdenoise custom ops; False runs
+        their portable ONNX function bodies, inlined by ONNX Runtime.
+    threads: ONNX Runtime intra-op threads (None: its default, all physical cores).
+    providers: execution providers, e.g. ["CUDAExecutionProvider"] or ["cuda"] (default CPU).
+    io_binding: keep the state in bound OrtValues between frames (default); False uses plain
+        `session.run` with numpy state (the reference path, same results).
+    """
+
+    def __init__(
+        self,
+        model: ModelSource,
+        *,
+        fast_kernels: bool = True,
+        threads: int | None = None,
+        providers: Sequence[Provider] | str | None = None,
+        io_binding: bool = True,
+    ) -> None:
+        if isinstance(model, (bytes, bytearray)):
+            self.source, payload = "<model bytes>", bytes(model)
+        else:
+            path = resolve_model(model)
+            self.source, payload = str(path), str(path)
+        options = ort.SessionOptions()
+        if threads is not None:
+            if threads < 1:
+                raise InputError(f"threads must be >= 1, got {threads}")
+            options.intra_op_num_threads = threads
+        self.fast_kernels = _register_fast_kernels(options) if fast_kernels else False
+        wanted = resolve_providers(providers)
+        try:
+            self._session = ort.InferenceSession(payload, options, providers=wanted)
+        except Exception as exc:  # onnxruntime's pybind errors derive from Exception only
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise InputError(f"{self.source}: ONNX Runtime cannot load the model: {first}") from exc
+        got = self._session.get_providers()
+        for p in wanted:
+            name = p if isinstance(p, str) else p[0]
+            if name not in got:
+                raise InputError(
+                    f"{self.source}: execution provider {name} failed to start (see ONNX "
+                    f"Runtime's log); the session would run on {', '.join(got)}"
+                )
+        self._contract: Contract = contract_from_session(self._session, source=self.source)
+        self._device = self._state_device(got)
+        self._binding = self._session.io_binding() if io_binding else None
+        self._static_hw = self._graph_static_hw()
+
+        self.last_nonfinite = 0
+        self.total_nonfinite = 0
+        self.last_nonfinite_by_buffer: dict[str, int] = {}
+        self.last_state_nonfinite = 0
+        self.total_state_nonfinite = 0
+        self.last_run_ms = 0.0
+        self.last_total_ms = 0.0
+        self.frames_processed = 0
+        self._size: tuple[int, int] | None = None  # unpadded H, W of the current history
+        self._padded: tuple[int, int] | None = None
+        self._slots: dict[str, list[_Slot]] = {}  # io-binding state, [current, next]
+        self._state: dict[str, np.ndarray] = {}  # session.run state
+        self._frame_index = 0
+        self._pending_reset = True
+
+    # -- properties -------------------------------------------------------------------------
+
+    @property
+    def contract(self) -> Contract:
+        return self._contract
+
+    @property
+    def family(self) -> str:
+        return self._contract.family
+
+    @property
+    def config(self) -> dict[str, Any]:
+        return dict(self._contract.config)
+
+    @property
+    def note(self) -> str:
+        """The model's note on input preprocessing the caller must NOT do."""
+        return self._contract.note
+
+    @property
+    def required_buffers(self) -> tuple[str, ...]:
+        return self._contract.buffer_names
+
+    @property
+    def state_specs(self) -> tuple[StateSpec, ...]:
+        return self._contract.state
+
+    @property
+    def pad_multiple(self) -> int:
+        return self._contract.pad_multiple
+
+    @property
+    def frame_index(self) -> int:
+        """Frames in the current history: 0 before the first frame and after a reset."""
+        return 0 if self._pending_reset else self._frame_index
+
+    @property
+    def providers(self) -> list[str]:
+        return self._session.get_providers()
+
+    @property
+    def session(self) -> ort.InferenceSession:
+        return self._session
+
+    def __repr__(self) -> str:
+        return (
+            f"Denoiser({self.source!r}, family={self.family!r}, buffers={self.required_buffers}, "
+            f"state={[s.name for s in self.state_specs]}, pad_multiple={self.pad_multiple}, "
+            f"providers={self.providers}, fast_kernels={self.fast_kernels})"
+        )
+
+    # -- frame loop -------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget the history: the next frame starts from zero state with reset = 1."""
+        self._pending_reset = True
+
+    def process(self, buffers: Mapping[str, np.ndarray], *, reset: bool = False) -> np.ndarray:
+        """Denoise one frame. buffers: name -> (C, H, W) or (1, C, H, W) float32.
+
+        Extra buffers are ignored. `reset=True` marks a camera cut. Returns (3, H, W) float32.
+        """
+        start = time.perf_counter()
+        feeds, (h, w), (hp, wp) = self._prepare(buffers)
+        if reset or (h, w) != self._size:
+            self._pending_reset = True
+        if self._pending_reset:
+            self._start_history((h, w), (hp, wp))
+        first = self._frame_index == 0
+        t0 = time.perf_counter()
+        try:
+            if self._binding is not None:
+                out = self._run_bound(feeds, first, hp, wp)
+            else:
+                out = self._run_plain(feeds, first, hp, wp)
+        except InputError:  # ContractError: the model broke the contract at run time
+            raise
+        except Exception as exc:
+            raise RuntimeError(
+                f"{self.source}: inference failed on frame {self.frames_processed} "
+                f"({h}x{w}, padded {hp}x{wp}): {str(exc).strip().splitlines()[-1]}"
+            ) from exc
+        self.last_run_ms = (time.perf_counter() - t0) * 1e3
+        self._frame_index += 1
+        self.frames_processed += 1
+        result = out[0] if (hp, wp) == (h, w) else np.ascontiguousarray(out[0, :, :h, :w])
+        self.last_total_ms = (time.perf_counter() - start) * 1e3
+        return result
+
+    def _prepare(
+        self, buffers: Mapping[str, np.ndarray]
+    ) -> tuple[dict[str, np.ndarray], tuple[int, int], tuple[int, int]]:
+        """Validate, sanitize and pad the buffers the model reads."""
+        if not isinstance(buffers, Mapping):
+            raise InputError(f"process() takes a dict name -> array, got {type(buffers).__name__}")
+        specs = self._contract.buffers
+        missing = [s.name for s in specs if s.name not in buffers]
+        if missing:
+            given = ", ".join(sorted(map(str, buffers))) or "none"
+            raise InputError(
+                f"missing buffer {missing[0]!r}: model {self.family!r} needs "
+                f"{', '.join(self.required_buffers)}; given: {given}"
+            )
+        arrays: dict[str, np.ndarray] = {}
+        size: tuple[int, int] | None = None
+        for spec in specs:
+            a = self._check_shape(spec, np.asarray(buffers[spec.name]))
+            if size is None:
+                size, first = a.shape[-2:], spec.name
+            elif a.shape[-2:] != size:
+                raise InputError(
+                    f"buffer {spec.name!r} has shape {np.shape(buffers[spec.name])}; expected "
+                    f"H x W = {size[0]} x {size[1]} like {first!r}"
+                )
+            arrays[spec.name] = a
+        if size is None:  # a model that reads no buffers cannot tell the frame size
+            raise InputError(f"model {self.family!r} lists no input buffers")
+        h, w = size
+        m = self.pad_multiple
+        hp, wp = -(-h // m) * m, -(-w // m) * m
+        if self._static_hw is not None and (hp, wp) != self._static_hw:
+            sh, sw = self._static_hw
+            raise InputError(f"model takes {sh}x{sw} frames only, got {h}x{w} (padded {hp}x{wp})")
+
+        feeds: dict[str, np.ndarray] = {}
+        counts: dict[str, int] = {}
+        for name, a in arrays.items():
+            original = np.asarray(buffers[name])
+            a32 = np.ascontiguousarray(a, dtype=np.float32)
+            bad = _count_nonfinite(a32)
+            feed = _pad_edge(a32, hp, wp)
+            if bad:
+                if np.may_share_memory(feed, original):
+                    feed = feed.copy()  # never modify the caller's array
+                np.nan_to_num(feed, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+                counts[name] = bad
+            feeds[name] = feed
+        self.last_nonfinite_by_buffer = counts
+        self.last_nonfinite = sum(counts.values())
+        self.total_nonfinite += self.last_nonfinite
+        return feeds, (h, w), (hp, wp)
+
+    def _check_shape(self, spec: BufferSpec, a: np.ndarray) -> np.ndarray:
+        """(C, H, W) or (1, C, H, W) [rank 5: (S, C, H, W) or (1, S, C, H, W)] -> batched view."""
+        given = a.shape
+        good = a.dtype.kind in "fiu"
+        if good and a.ndim == spec.rank - 1:
+            a = a[None]
+        good = good and a.ndim == spec.rank and a.shape[0] == 1
+        good = good and (spec.channels is None or a.shape[-3] == spec.channels)
+        good = good and min(a.shape[-2:], default=0) > 0
+        if not good:
+            batched = spec.expected.replace("(", "(1, ", 1)
+            raise InputError(
+                f"buffer {spec.name!r} has shape {given} and dtype {a.dtype}; expected "
+                f"{spec.expected} or {batched} float32"
+            )
+        return a
+
+    def _start_history(self, size: tuple[int, int], padded: tuple[int, int]) -> None:
+        """Zero the state (allocating it at a new size) for a fresh history."""
+        if padded != self._padded:
+            self._slots, self._state = {}, {}
+            hp, wp = padded
+            for s in self.state_specs:
+                if self._binding is not None:
+                    shape = s.shape(hp, wp)
+                    self._slots[s.name] = [_Slot(shape, self._device), _Slot(shape, self._device)]
+                else:
+                    self._state[s.name] = np.zeros(s.shape(hp, wp), np.float32)
+            self._padded = padded
+        else:
+            for pair in self._slots.values():
+                pair[0].zero()
+            for a in self._state.values():
+                a.fill(0.0)
+        self._size = size
+        self._frame_index = 0
+        self._pending_reset = False
+
+    def _run_plain(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
+        inputs = dict(feeds)
+        if self._contract.has_reset:
+            inputs[RESET] = _RESET[first]
+        for s in self.state_specs:
+            inputs[s.input_name] = self._state[s.name]
+        names = [OUTPUT] + [s.output_name for s in self.state_specs]
+        out, *states = self._session.run(names, inputs)
+        self._check_output_shape(out.shape, hp, wp)
+        bad = 0
+        for s, value in zip(self.state_specs, states, strict=True):
+            if value.shape != s.shape(hp, wp):
+                raise ContractError(
+                    f"{self.source}: model broke the contract: {s.output_name} has shape "
+                    f"{value.shape}, expected {s.shape(hp, wp)}"
+                )
+            n = _count_nonfinite(value)
+            if n:
+                np.nan_to_num(value, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+                bad += n
+            self._state[s.name] = value
+        self._note_state_nonfinite(bad)
+        return out
+
+    def _run_bound(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
+        io = self._binding
+        io.clear_binding_inputs()
+        io.clear_binding_outputs()
+        for name, array in feeds.items():
+            io.bind_cpu_input(name, array)
+        if self._contract.has_reset:
+            io.bind_cpu_input(RESET, _RESET[first])
+        for s in self.state_specs:
+            current, following = self._slots[s.name]
+            io.bind_ortvalue_input(s.input_name, current.value)
+            io.bind_ortvalue_output(s.output_name, following.value)
+        out = np.empty((1, 3, hp, wp), np.float32)
+        io.bind_ortvalue_output(OUTPUT, ort.OrtValue.ortvalue_from_numpy(out))  # written in place
+        self._session.run_with_iobinding(io)
+        # On CPU check every state tensor (one cheap sum each); on a device only when the
+        # output shows a problem, so that state stays on the device.
+        check_state = self._device is None or _count_nonfinite(out) > 0
+        bad = 0
+        for pair in self._slots.values():
+            pair.reverse()  # the state just written becomes the current one
+            if check_state:
+                bad += pair[0].sanitize()
+        self._note_state_nonfinite(bad)
+        return out
+
+    def _note_state_nonfinite(self, bad: int) -> None:
+        if bad and not self.total_state_nonfinite:
+            warnings.warn(
+                f"{self.source}: the model produced {bad} NaN/Inf state values on frame "
+                f"{self.frames_processed}; replaced by 0 (a model bug)",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+        self.last_state_nonfinite = bad
+        self.total_state_nonfinite += bad
+
+    def _check_output_shape(self, shape: tuple[int, ...], hp: int, wp: int) -> None:
+        if tuple(shape) != (1, 3, hp, wp):
+            raise ContractError(
+                f"{self.source}: model broke the contract: output has shape {tuple(shape)}, "
+                f"expected {(1, 3, hp, wp)}"
+            )
+
+    # -- setup helpers ----------------------------------------------------------------------
+
+    def _state_device(self, providers: list[str]) -> tuple[str, int] | None:
+        """Where bound state lives: None for host memory, else (device type, device id)."""
+        for name in providers:
+            device = _DEVICE_OF_PROVIDER.get(name)
+            if device is None:
+                continue
+            options = self._session.get_provider_options().get(name, {})
+            device_id = int(options.get("device_id", 0) or 0)
+            try:
+                ort.OrtValue.ortvalue_from_numpy(np.zeros(1, np.float32), device, device_id)
+            except Exception as exc:
+                warnings.warn(
+                    f"cannot allocate state on {device}:{device_id} ({exc}); keeping it on host",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
+                return None
+            return device, device_id
+        return None
+
+    def _graph_static_hw(self) -> tuple[int, int] | None:
+        """(H, W) when the graph fixes them (non-dynamic export), else None."""
+        for spec in self._contract.buffers:
+            dims = spec.graph_shape[-2:]
+            if all(isinstance(d, int) and d > 0 for d in dims):
+                return int(dims[0]), int(dims[1])
+        return None

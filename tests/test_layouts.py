@@ -1,0 +1,187 @@
+"""Channel layouts: canonical, blender (Cycles multilayer, multi-part) and --channel overrides."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+from rtdenoise.runtime.errors import InputError
+from rtdenoise.runtime.layouts import (
+    BUFFER_CHANNELS,
+    extract_buffers,
+    get_layout,
+    parse_overrides,
+    resolve_channels,
+)
+from rtdenoise.runtime.sequence import read_frame
+
+H, W = 6, 8
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_buffer_table_matches_models_base():
+    # models/base.py imports torch: read its table with ast instead of importing it.
+    tree = ast.parse((ROOT / "models" / "base.py").read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", "") == "BUFFER_CHANNELS":
+            assert ast.literal_eval(node.value) == BUFFER_CHANNELS
+            return
+    pytest.fail("BUFFER_CHANNELS not found in models/base.py")
+
+
+def _chan(value: float) -> np.ndarray:
+    return np.full((H, W), value, np.float32)
+
+
+def blender_channels(prefix: str = "ViewLayer.") -> dict[str, np.ndarray]:
+    """Cycles pass names with distinct constant values per channel."""
+    ch = {}
+    for i, c in enumerate("RGBA"):
+        ch[f"{prefix}Combined.{c}"] = _chan(10 + i)
+    for i, c in enumerate("RGB"):
+        ch[f"{prefix}Noisy Image.{c}"] = _chan(20 + i)
+        ch[f"{prefix}Denoising Albedo.{c}"] = _chan([0.5, 3.0, -0.2][i])
+    for i, c in enumerate("XYZ"):
+        ch[f"{prefix}Denoising Normal.{c}"] = _chan([0.1, 0.2, -0.97][i])
+    ch[f"{prefix}Denoising Depth.Z"] = _chan(7.5)
+    ch[f"{prefix}Depth.Z"] = _chan(1e10)
+    for i, c in enumerate("XYZW"):
+        ch[f"{prefix}Vector.{c}"] = _chan([1.5, 2.0, -4.0, 9.0][i])
+    return ch
+
+
+def _check_blender(buffers: dict[str, np.ndarray]) -> None:
+    assert {k: v.shape[0] for k, v in buffers.items()} == {
+        "color": 3,
+        "albedo": 3,
+        "normal": 3,
+        "depth": 1,
+        "motion": 2,
+    }
+    np.testing.assert_array_equal(buffers["color"][:, 0, 0], [20, 21, 22])  # Noisy Image first
+    np.testing.assert_allclose(buffers["albedo"][:, 0, 0], [0.5, 1.0, 0.0])  # clamped to [0,1]
+    np.testing.assert_allclose(buffers["normal"][:, 0, 0], [0.1, 0.2, -0.97], rtol=1e-6)
+    assert buffers["depth"][0, 0, 0] == 7.5  # Denoising Depth, not planar Depth
+    # previous = current + (Vector.X, -Vector.Y)
+    np.testing.assert_array_equal(buffers["motion"][:, 0, 0], [1.5, -2.0])
+
+
+def _write_single(path: Path, channels: dict[str, np.ndarray]) -> Path:
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    OpenEXR.File(header, channels).write(str(path))
+    return path
+
+
+def _write_multipart(path: Path, channels: dict[str, np.ndarray]) -> Path:
+    """One part per pass, named like Blender 5 does ("ViewLayer.Vector")."""
+    groups: dict[str, dict[str, np.ndarray]] = {}
+    for name, a in channels.items():
+        groups.setdefault(name.rsplit(".", 1)[0], {})[name] = a
+    parts = [
+        OpenEXR.Part(
+            {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, ch, name=n
+        )
+        for n, ch in groups.items()
+    ]  # a fresh header per part: OpenEXR.Part stores the part name in it
+    OpenEXR.File(parts).write(str(path))
+    return path
+
+
+def test_blender_single_part(tmp_path):
+    path = _write_single(tmp_path / "render_0003.exr", blender_channels())
+    frame = read_frame(path, "blender")
+    assert frame.index == 3
+    _check_blender(frame.buffers)
+
+
+def test_blender_multi_part(tmp_path):
+    path = _write_multipart(tmp_path / "render_0004.exr", blender_channels("RenderLayer."))
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        assert len(f.parts) == 7  # really multi-part: one part per pass
+    _check_blender(read_frame(path, "blender").buffers)
+
+
+def test_blender_combined_fallback_and_no_prefix():
+    ch = {k: v for k, v in blender_channels("").items() if "Noisy" not in k}
+    buffers = get_layout("blender").convert(extract_buffers(ch, "blender"))
+    np.testing.assert_array_equal(buffers["color"][:, 0, 0], [10, 11, 12])
+
+
+def test_two_view_layers_are_ambiguous_until_named():
+    ch = blender_channels("A.") | blender_channels("B.")
+    with pytest.raises(InputError, match=r"f\.exr: layer 'Noisy Image' is ambiguous: A\.Noisy"):
+        resolve_channels(ch, "blender", source="f.exr")
+    names = {"color": "B.Noisy Image", "albedo": "B.Denoising Albedo", "normal": "none"}
+    names |= {"depth": "B.Denoising Depth", "motion": "B.Vector"}
+    got = resolve_channels(ch, "blender", names)
+    assert got["color"] == ["B.Noisy Image.R", "B.Noisy Image.G", "B.Noisy Image.B"]
+    assert got["depth"] == ["B.Denoising Depth.Z"] and got["motion"] == ["B.Vector.X", "B.Vector.Y"]
+    assert "normal" not in got
+
+
+def test_overrides_layer_xyz_single_and_list():
+    ch = {c: _chan(1) for c in "RGB"}
+    ch |= {f"My.Alb.{c}": _chan(i) for i, c in enumerate("XYZ")}
+    ch |= {"zbuf": _chan(4), "mv.U": _chan(5), "mv.V": _chan(6), "albedo.R": _chan(9)}
+    ov = parse_overrides(["albedo=My.Alb", "depth=zbuf", "motion = mv.U, mv.V"])
+    assert ov == {"albedo": "My.Alb", "depth": "zbuf", "motion": "mv.U, mv.V"}
+    got = resolve_channels(ch, "canonical", ov)
+    assert got == {
+        "color": ["R", "G", "B"],
+        "albedo": ["My.Alb.X", "My.Alb.Y", "My.Alb.Z"],
+        "depth": ["zbuf"],
+        "motion": ["mv.U", "mv.V"],
+    }
+    buffers = extract_buffers(ch, "canonical", {"motion": "mv", "albedo": "none"})  # -> U,V
+    np.testing.assert_array_equal(buffers["motion"][:, 0, 0], [5, 6])
+    # a partial canonical layer (albedo.R only) is an error unless overridden or dropped
+    with pytest.raises(
+        InputError, match=r"missing channel albedo\.G, albedo\.B for buffer 'albedo'"
+    ):
+        resolve_channels(ch, "canonical")
+    assert "albedo" not in resolve_channels(ch, "canonical", {"albedo": "none"})
+
+
+def test_overridden_buffer_is_required():
+    ch = {c: _chan(1) for c in "RGB"}
+    with pytest.raises(InputError, match=r"x\.exr: missing channel Alb\.R, Alb\.G, Alb\.B"):
+        resolve_channels(ch, "canonical", {"albedo": "Alb"}, source="x.exr")
+    with pytest.raises(InputError, match=r"missing channel q\.Y for buffer 'motion'"):
+        resolve_channels(ch | {"q.X": _chan(0)}, "canonical", {"motion": "q.X,q.Y"})
+
+
+def test_missing_color_names_file_channel_and_present():
+    ch = {"R": _chan(1), "G": _chan(1), "albedo.R": _chan(0)}
+    with pytest.raises(InputError) as info:
+        resolve_channels(ch, "canonical", source="shot/f_0001.exr")
+    msg = str(info.value)
+    assert msg.startswith("shot/f_0001.exr: missing channel B for buffer 'color'")
+    assert "channels present: G, R, albedo.R" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize(
+    "item, match",
+    [
+        ("albedo", "expected BUFFER=CHANNELS"),
+        ("=x", "expected BUFFER=CHANNELS"),
+        ("albedo=", "expected BUFFER=CHANNELS"),
+        ("diffuse=x", "unknown buffer 'diffuse'"),
+        ("motion=a.X,a.Y,a.Z", "motion needs 2 channel names"),
+    ],
+)
+def test_bad_override_syntax(item, match):
+    with pytest.raises(InputError, match=match):
+        parse_overrides([item])
+
+
+def test_unknown_layout_and_size_mismatch():
+    with pytest.raises(
+        InputError, match="unknown layout 'arnold'; known layouts: canonical, blender"
+    ):
+        get_layout("arnold")
+    ch = {"R": _chan(1), "G": _chan(1), "B": np.ones((3, 3), np.float32)}
+    with pytest.raises(InputError, match="channel 'B' is 3x3 but channel 'R' is 8x6"):
+        extract_buffers(ch, "canonical")
