@@ -13,10 +13,8 @@ host; on CPU they are numpy arrays the session reads and writes in place.
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import os
-import sys
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -102,26 +100,10 @@ def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provid
     return resolved
 
 
-@contextlib.contextmanager
-def _torch_hidden():
-    """Hide torch while importing: onnxruntime-extensions 0.15.2 imports torch when it is
-    installed (for a Whisper converter: `cvt.py`), ~5 s and ~1 GB the runtime must not pay."""
-    if "torch" in sys.modules:  # already imported by the host: nothing to save
-        yield
-        return
-    sys.modules["torch"] = None  # type: ignore[assignment]  # `import torch` -> ImportError
-    try:
-        yield
-    finally:
-        if "torch" in sys.modules and sys.modules["torch"] is None:
-            del sys.modules["torch"]
-
-
 def _register_fast_kernels(options: ort.SessionOptions) -> bool:
     """Register the numba kernels of the rtdenoise custom ops; False (with a warning) if absent."""
     try:
-        with _torch_hidden():
-            fastops = importlib.import_module(".fastops", __package__)
+        fastops = importlib.import_module(".fastops", __package__)
     except ModuleNotFoundError as exc:
         if exc.name and exc.name.split(".")[-1] in ("fastops", "onnxruntime_extensions", "numba"):
             warnings.warn(

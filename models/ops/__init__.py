@@ -1,0 +1,28 @@
+"""Filter stages in torch form (design.md s.2): one module per op, one public function each.
+
+Importing this package registers every `torch.ops.rtdenoise.*` custom op used at export.
+Adding an op: a new module here, and one line in `OPS` below.
+"""
+
+from .adaptive_fusion import adaptive_fusion, adaptive_fusion_op, adaptive_fusion_reference
+from .kernel_apply import kernel_apply, kernel_apply_op, kernel_apply_reference
+from .registry import NAMESPACE, exporting, use_custom_op
+
+# ONNX op name -> (public function, torch custom op, reference implementation).
+OPS = {
+    "KernelApply": (kernel_apply, kernel_apply_op, kernel_apply_reference),
+    "AdaptiveFusion": (adaptive_fusion, adaptive_fusion_op, adaptive_fusion_reference),
+}
+
+__all__ = [
+    "NAMESPACE",
+    "OPS",
+    "adaptive_fusion",
+    "adaptive_fusion_op",
+    "adaptive_fusion_reference",
+    "exporting",
+    "kernel_apply",
+    "kernel_apply_op",
+    "kernel_apply_reference",
+    "use_custom_op",
+]

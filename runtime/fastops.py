@@ -1,0 +1,161 @@
+"""Register the fast (numba) kernels with ONNX Runtime through onnxruntime-extensions.
+
+Each `rtdenoise.runtime.kernels.KERNELS` entry becomes a Python custom op
+`rtdenoise::<Name>` (float32 inputs and output, int64 attributes). A registered op takes
+precedence over the model-local function body of the same name (design.md s.2, form 3).
+
+Pitfalls handled here (research-notes "Custom ops"):
+- ops must be declared before `register_custom_ops_library`: they are declared at import;
+- the library's default result hook converts every output with `.flatten().tolist()`
+  (~180 ms per 720p call); `_array_hook` hands the ndarray back instead. It replaces a
+  library-internal function, so it is installed only for the pinned version 0.15.2;
+- every declared attribute must be present on the node (the exporter writes them all);
+- inputs and outputs are copied on every call; at 720p KernelApply's 49-channel kernel is
+  180 MB, and glibc serves such blocks with fresh mmaps that page-fault on every call.
+  `tune_allocator()` (opt-in, process-wide) keeps them in the heap instead.
+No torch here.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import sys
+import warnings
+from collections import Counter
+
+import numpy as np
+import onnxruntime as ort
+
+from .kernels import KERNELS, KernelDef
+
+
+def _import_extensions_without_torch():
+    """Import onnxruntime-extensions with torch hidden: 0.15.2 imports torch when installed
+    (for a Whisper converter, `cvt.py`), ~5 s and ~1 GB the runtime must not pay."""
+    hide = "torch" not in sys.modules
+    if hide:
+        sys.modules["torch"] = None  # type: ignore[assignment]  # `import torch` -> ImportError
+    try:
+        import onnxruntime_extensions
+        from onnxruntime_extensions import _ocos
+    finally:
+        if hide and sys.modules.get("torch", 0) is None:
+            del sys.modules["torch"]
+    return onnxruntime_extensions, _ocos
+
+
+onnxruntime_extensions, _ortx_ocos = _import_extensions_without_torch()
+PyCustomOpDef = onnxruntime_extensions.PyCustomOpDef
+get_library_path = onnxruntime_extensions.get_library_path
+onnx_op = onnxruntime_extensions.onnx_op
+
+DOMAIN = "rtdenoise"
+# The onnxruntime-extensions version whose hook protocol `_array_hook` follows.
+HOOK_VERSION = "0.15.2"
+
+FAST_OPS: tuple[str, ...] = tuple(KERNELS)
+
+# Calls per op through ORT (tests use it to prove the fast kernel ran).
+CALLS: Counter[str] = Counter()
+
+_hook_installed = False
+
+
+def _array_hook(k_id: int, feed: list, attributes: dict) -> tuple:
+    """Result hook: like onnxruntime_extensions._ocos._on_pyop_invocation, returning arrays.
+
+    The C++ side receives (k_id, shape_0, values_0, shape_1, values_1, ...); it accepts a
+    numpy array for values, which skips the per-element Python list round trip.
+    """
+    opdef = _ortx_ocos.Opdef._odlist.get(k_id)
+    if opdef is None:
+        raise RuntimeError(f"no Python custom op with id {k_id}; was it declared with @onnx_op?")
+    rv = opdef.body(*feed, **opdef.cast_attributes(attributes))
+    results = rv if isinstance(rv, tuple) else (rv,)
+    out: list = []
+    for r in results:
+        r = np.asarray(r)
+        out.append(r.shape)
+        if r.dtype.kind in "OUS":  # string tensors keep the library's list protocol
+            out.append(r.flatten().tolist())
+        else:
+            out.append(np.ascontiguousarray(r))
+    return (k_id, *out)
+
+
+def install_array_hook() -> bool:
+    """Install `_array_hook` (idempotent). Returns False, with a warning, on another version."""
+    global _hook_installed
+    if _hook_installed:
+        return True
+    if onnxruntime_extensions.__version__ != HOOK_VERSION:
+        warnings.warn(
+            f"onnxruntime-extensions {onnxruntime_extensions.__version__} != {HOOK_VERSION}: "
+            "keeping its default result hook (correct but ~100x slower per call)",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return False
+    PyCustomOpDef.install_hooker(_array_hook)
+    _hook_installed = True
+    return True
+
+
+def hook_installed() -> bool:
+    """True when the array-returning hook is the active one."""
+    return _hook_installed
+
+
+def _declare(kdef: KernelDef) -> None:
+    def body(*inputs, **attrs):
+        CALLS[kdef.name] += 1
+        return kdef.fn(*inputs, **attrs)
+
+    body.__name__ = f"rtdenoise_{kdef.name}"
+    onnx_op(
+        op_type=f"{DOMAIN}::{kdef.name}",
+        inputs=[PyCustomOpDef.dt_float] * kdef.n_inputs,
+        outputs=[PyCustomOpDef.dt_float],
+        attrs={a: PyCustomOpDef.dt_int64 for a in kdef.int_attrs},
+    )(body)
+
+
+# Declared once, at import, before any session registers the library.
+for _kdef in KERNELS.values():
+    _declare(_kdef)
+
+
+def tune_allocator(threshold_bytes: int = 1 << 30) -> bool:
+    """Serve blocks below `threshold_bytes` from the reused malloc heap (glibc only).
+
+    Process-wide: sets M_MMAP_THRESHOLD and M_TRIM_THRESHOLD, so large per-frame buffers
+    (the copies the Python custom ops make, numpy outputs) stop paying page faults on every
+    call (measured at 720p: ORT-fast KernelApply overhead over the bare kernel ~75 -> ~35 ms)
+    at the price of keeping freed memory mapped. Returns False where it does not apply.
+    """
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        mallopt = ctypes.CDLL("libc.so.6").mallopt
+    except (OSError, AttributeError):
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
+    ok_mmap = mallopt(m_mmap_threshold, int(threshold_bytes)) == 1
+    ok_trim = mallopt(m_trim_threshold, int(threshold_bytes)) == 1
+    return ok_mmap and ok_trim
+
+
+def register_fast_kernels(so: ort.SessionOptions) -> None:
+    """Make sessions created with `so` run the rtdenoise ops with the numba kernels."""
+    install_array_hook()
+    so.register_custom_ops_library(get_library_path())
+
+
+__all__ = [
+    "CALLS",
+    "FAST_OPS",
+    "hook_installed",
+    "install_array_hook",
+    "register_fast_kernels",
+    "tune_allocator",
+]

@@ -1,0 +1,97 @@
+"""Fast kernel of KernelApply (Lee24 eq. (2)); reference: rtdenoise.models.ops.kernel_apply.
+
+out[n, c, y, x] = sum_{i, j < k} kernel[n, i*k + j, y, x]
+                  * image[n, c, clamp(y + (i - r) d), clamp(x + (j - r) d)],  r = k // 2
+
+Row-vectorised: one output row per parallel iteration; for each kernel row i the source row
+is copied once into an edge-replicated padded buffer, so the taps are branch-free contiguous
+FMA loops  out_row[x] += kernel_row_t[x] * padded_row[x + j d], two taps per pass (fewer
+accumulator loads/stores: ~10 % faster than one).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from ._common import as_f32c
+
+NAME = "KernelApply"
+INT_ATTRS = ("kernel_size", "dilation")
+
+
+@njit(cache=True, fastmath=True)
+def _pad_row(src, dst, p):
+    """dst[p + x] = src[x]; dst[:p] = src[0]; dst[p + w:] = src[w - 1]."""
+    w = src.shape[0]
+    left = src[0]
+    right = src[w - 1]
+    for x in range(p):
+        dst[x] = left
+    for x in range(w):
+        dst[p + x] = src[x]
+    for x in range(p + w, dst.shape[0]):
+        dst[x] = right
+
+
+@njit(cache=True, fastmath=True)
+def _fma_row(acc, weight, src, off):
+    """acc[x] += weight[x] * src[x + off] over the whole row."""
+    for x in range(acc.shape[0]):
+        acc[x] += weight[x] * src[x + off]
+
+
+@njit(cache=True, fastmath=True)
+def _fma2_row(acc, w0, w1, src, o0, o1):
+    """acc[x] += w0[x] * src[x + o0] + w1[x] * src[x + o1] over the whole row."""
+    for x in range(acc.shape[0]):
+        acc[x] += w0[x] * src[x + o0] + w1[x] * src[x + o1]
+
+
+@njit(parallel=True, cache=True, fastmath=True)
+def _kernel_apply_nb(image, kernel, out, k, d):
+    n_img, n_ch, h, w = image.shape
+    r = k // 2
+    p = r * d
+    for row in prange(n_img * h):
+        n = row // h
+        y = row - n * h
+        padded = np.empty((n_ch, w + 2 * p), dtype=np.float32)
+        for c in range(n_ch):
+            out[n, c, y, :] = 0.0
+        for i in range(k):
+            yy = min(max(y + (i - r) * d, 0), h - 1)
+            for c in range(n_ch):
+                _pad_row(image[n, c, yy], padded[c], p)
+            t0 = i * k
+            for j in range(0, k - 1, 2):
+                w0 = kernel[n, t0 + j, y]
+                w1 = kernel[n, t0 + j + 1, y]
+                for c in range(n_ch):
+                    _fma2_row(out[n, c, y], w0, w1, padded[c], j * d, (j + 1) * d)
+            if k % 2 == 1:  # k is odd: the last tap of the row alone
+                weight = kernel[n, t0 + k - 1, y]
+                for c in range(n_ch):
+                    _fma_row(out[n, c, y], weight, padded[c], (k - 1) * d)
+
+
+def kernel_apply(
+    image: np.ndarray, kernel: np.ndarray, kernel_size: int, dilation: int
+) -> np.ndarray:
+    """image (N, C, H, W), kernel (N, k*k, H, W) float32 -> (N, C, H, W) float32."""
+    image = as_f32c(image, "image")
+    kernel = as_f32c(kernel, "kernel")
+    k, d = int(kernel_size), int(dilation)
+    n, _, h, w = image.shape
+    if k < 1 or k % 2 == 0 or d < 1:
+        raise ValueError(f"KernelApply needs odd kernel_size and dilation >= 1, got {k}, {d}")
+    if kernel.shape != (n, k * k, h, w):
+        raise ValueError(f"kernel has shape {kernel.shape}; expected {(n, k * k, h, w)}")
+    out = np.empty_like(image)
+    _kernel_apply_nb(image, kernel, out, k, d)
+    return out
+
+
+def warmup() -> None:
+    """Compile (or load from the numba cache) on a tiny input."""
+    kernel_apply(np.zeros((1, 1, 2, 2), np.float32), np.zeros((1, 1, 2, 2), np.float32), 1, 1)
