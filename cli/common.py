@@ -6,13 +6,14 @@ import json
 import math
 import os
 import sys
-import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, NoReturn
 
 import typer
+
+from rtdenoise.runtime.atomic import write_text_atomic
 from rtdenoise.runtime.errors import InputError
 
 EXIT_BAD_INPUT = 2
@@ -94,16 +95,7 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
     text = json.dumps(json_safe(obj), indent=2, allow_nan=False) + "\n"
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a JSON file path")
-    folder = path.parent
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder}: is a file, not a folder")
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.json", dir=folder)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    if path.parent.exists() and not path.parent.is_dir():
+        raise InputError(f"{path.parent}: is a file, not a folder")
+    write_text_atomic(path, text)
     return path

@@ -10,12 +10,15 @@ IR/opset versions and the contract metadata, and checked.
 from __future__ import annotations
 
 import json
+import logging
+import warnings
 
 import onnx
 import torch
-from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
 from torch import nn
 from torch.export import Dim
+
+from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
 
 from . import ops as onnx_ops
 from .deploy import to_deploy
@@ -87,7 +90,10 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     wrapper = ContractModule(deployed).eval()
     h, w = example_size(deployed.pad_multiple)
     args = example_inputs(deployed, h, w)
-    with torch.no_grad(), onnx_ops.exporting():
+    # The exporter's chatter (torchvision absent, axis renames, deprecations) is not the user's.
+    logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+    with torch.no_grad(), onnx_ops.exporting(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
         program = torch.onnx.export(
             wrapper,
             args,

@@ -3,14 +3,15 @@
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import onnx
+
 from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.checkpoint import load_checkpoint
+from rtdenoise.runtime.atomic import write_bytes_atomic
 
 from .onnx_export import export_model
 from .validate import ValidationReport, synthetic_frames, validate
@@ -37,7 +38,6 @@ def validation_frames(
 ) -> tuple[list[dict[str, np.ndarray]], str]:
     """Frames to validate on: a bundled rendered sequence when one is shipped, else synthetic."""
     from rtdenoise.runtime.sequence import find_frames, read_frame
-
     from rtdenoise.shipped import sample_sequences
 
     pad = model.pad_multiple
@@ -99,18 +99,5 @@ def export_checkpoint(
             f"tolerance {tolerance:.3g}; {output} not written"
         )
     if output is not None:
-        result.path = write_atomic(Path(output), data)
+        result.path = write_bytes_atomic(Path(output), data)
     return result
-
-
-def write_atomic(path: Path, data: bytes) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+
 from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
 from rtdenoise.runtime.denoiser import Denoiser
 

@@ -9,12 +9,12 @@ Writes are atomic: a temp file in the target folder, then a rename.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 
+from .atomic import atomic_path
 from .errors import InputError
 
 
@@ -89,17 +89,6 @@ def write_exr(
     # OpenEXR writes non-contiguous arrays wrong without an error: always copy contiguous.
     data = {name: np.ascontiguousarray(a, dtype=dtype) for name, a in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    folder = path.parent
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder}: output folder is a file")
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.exr", dir=folder)
-    os.close(fd)
-    try:
-        with OpenEXR.File(header, data) as exr:
-            exr.write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp, OpenEXR.File(header, data) as exr:
+        exr.write(str(tmp))
     return path

@@ -8,13 +8,12 @@ from __future__ import annotations
 
 import os
 import struct
-import tempfile
 import zlib
 from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from .atomic import write_bytes_atomic
 
 
 def to_uint8(rgb: np.ndarray) -> np.ndarray:
@@ -49,16 +48,5 @@ def write_png(path: str | os.PathLike, rgb: np.ndarray) -> Path:
     """Write a tau-tonemapped 8-bit PNG preview of a (3, H, W) linear image, atomically."""
     path = Path(path)
     data = encode_png(to_uint8(rgb))
-    folder = path.parent
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"{folder}: output folder is a file")
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".tmp.png", dir=folder)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_bytes_atomic(path, data)
     return path

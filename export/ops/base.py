@@ -49,8 +49,9 @@ class OpSpec:
 
     def torch_op(self):
         """The `torch.ops.rtdenoise.<torch_name>.default` overload (imports the torch forms)."""
-        import rtdenoise.models.ops  # noqa: F401  (registers the custom ops)
         import torch
+
+        import rtdenoise.models.ops  # noqa: F401  (registers the custom ops)
 
         return getattr(getattr(torch.ops, DOMAIN), self.torch_name).default
 

@@ -44,6 +44,7 @@ def bench_op(
     """
     import onnxruntime as ort
     import torch
+
     from rtdenoise.models.ops import OPS as TORCH_OPS
     from rtdenoise.runtime import fastops
     from rtdenoise.runtime.kernels import KERNELS

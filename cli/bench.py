@@ -1,0 +1,107 @@
+"""`denoise-bench`: how fast a denoiser runs at a real frame size, every path side by side."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from .common import fail, user_errors
+
+app = typer.Typer(add_completion=False, no_args_is_help=True)
+console = Console()
+
+LABELS = {
+    "torch": "PyTorch eager",
+    "torch_deployed": "PyTorch eager (deployed)",
+    "ort_fast": "ORT fast",
+    "ort_portable": "ORT portable",
+    "numba": "numba kernel",
+}
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        fail(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720")
+    return h, w
+
+
+@app.command()
+def bench(
+    model: Annotated[
+        str,
+        typer.Argument(help="Checkpoint (.pt), demo:<family>, or a family name (random weights)."),
+    ],
+    size: Annotated[str, typer.Option(help="Frame size WIDTHxHEIGHT.")] = "1280x720",
+    repeats: Annotated[int, typer.Option(help="Timed frames (after one warm-up frame).")] = 5,
+    threads: Annotated[int, typer.Option(help="Threads for ORT and PyTorch (0: default).")] = 0,
+    json_path: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
+) -> None:
+    """Time one frame of a denoiser in PyTorch eager (training and deployed form), ONNX
+    Runtime with the fast kernels, and ONNX Runtime portable, plus each filter stage the
+    model calls. Medians over REPEATS frames measured in one run; speed depends on the
+    machine and its load, so compare the columns, not runs on different days.
+    """
+    with user_errors():
+        from rtdenoise.export.benchmark import PATHS, benchmark_model
+        from rtdenoise.models.checkpoint import load_checkpoint
+        from rtdenoise.models.registry import build_model
+
+        from .export import resolve_checkpoint
+
+        h, w = _parse_size(size)
+        if model.startswith("demo:") or model.endswith(".pt"):
+            net, _meta = load_checkpoint(resolve_checkpoint(model))
+        else:
+            net = build_model(model)
+        pad = net.pad_multiple
+        h, w = -(-h // pad) * pad, -(-w // pad) * pad
+        with console.status("benchmarking") as status:
+            result = benchmark_model(
+                net,
+                (h, w),
+                repeats=repeats,
+                threads=threads or None,
+                progress=lambda msg: status.update(f"benchmarking: {msg}"),
+            )
+
+    table = Table(title=f"{net.family} at {w}x{h}, median ms per frame ({repeats} frames)")
+    table.add_column("stage")
+    forms = [*PATHS[:1], "ort_fast", "ort_portable", "numba"]
+    for form in forms:
+        table.add_column(LABELS[form], justify="right")
+    for st in result.stages:
+        label = f"{st['op']} {'x'.join(map(str, st['shape'][2:]))} x{st['calls_per_frame']}"
+        table.add_row(label, *(f"{st['ms'][f]:.1f}" for f in forms))
+    table.add_row(
+        "whole model",
+        *(f"{result.model_ms[f]:.1f}" if f in result.model_ms else "" for f in forms),
+    )
+    console.print(table)
+    console.print(
+        f"PyTorch eager deployed form: {result.model_ms['torch_deployed']:.1f} ms; "
+        f"ORT fast is {result.model_ms['torch'] / result.model_ms['ort_fast']:.2f}x PyTorch eager"
+    )
+    if json_path:
+        payload = {
+            "family": net.family,
+            "size": [h, w],
+            "repeats": repeats,
+            "model_ms": result.model_ms,
+            "stages": result.stages,
+        }
+        json_path.write_text(json.dumps(payload, indent=2))
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

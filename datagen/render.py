@@ -1,0 +1,247 @@
+"""Render one animated sequence with Mitsuba 3 in the canonical EXR layout.
+
+One folder per sequence:
+- `frame_NNNN.exr`: `R,G,B` noisy 1-spp radiance, `colorB.R/G/B` an independent
+  1-spp estimate (other seed), `albedo.R/G/B`, `normal.X/Y/Z`, `depth.Z`,
+  `motion.X/Y` (conventions in `features.py`);
+- `ref_NNNN.exr`: `R,G,B` high-spp reference of the same frame;
+- `meta.json` (written last, atomically: a sequence without it is incomplete).
+
+Radiance: `path` integrator, box reconstruction filter, multiplied by one
+per-sequence exposure factor (equivalent to scaling every emitter) chosen from
+a low-spp pilot of frame 0. Features come from the `aov` integrator at pixel
+centres (`stratified` sampler, 1 sample, no jitter).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..runtime.atomic import write_text_atomic
+from ..runtime.exr import write_exr
+from .camera import Camera, orbit_path
+from .features import BACKGROUND_ALBEDO, BACKGROUND_DEPTH, canonical_features, override_albedo
+from .scene import ID_SCALE, build_scene, conductor_f0, random_scene, shape_materials
+
+HALF_MAX = 65000.0  # keep radiance finite in float16 (max 65504)
+_AOVS = "albedo:albedo,nn:sh_normal,pp:position"
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Settings shared by every sequence of a render job."""
+
+    width: int = 64
+    height: int = 64
+    frames: int = 8
+    spp_ref: int = 1024
+    max_depth: int = 6
+    half: bool = True
+    pilot_spp: int = 16
+
+
+def derive_seed(*values: int) -> int:
+    """A well-mixed 31-bit seed from integers (stable across runs and platforms)."""
+    return int(np.random.SeedSequence([int(v) for v in values]).generate_state(1)[0] >> 1)
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write JSON atomically (temp file in the same folder, then rename)."""
+    write_text_atomic(path, json.dumps(data, indent=1) + "\n")
+
+
+def _sensor(mi, cam: Camera, sampler: dict):
+    return mi.load_dict(
+        {
+            "type": "perspective",
+            "fov": cam.fov,
+            "fov_axis": "x",
+            "near_clip": 0.01,
+            "far_clip": 1.0e5,
+            "to_world": mi.ScalarTransform4f().look_at(
+                origin=list(cam.origin), target=list(cam.target), up=list(cam.up)
+            ),
+            "film": {
+                "type": "hdrfilm",
+                "width": cam.width,
+                "height": cam.height,
+                "rfilter": {"type": "box"},
+                "pixel_format": "rgb",
+            },
+            "sampler": sampler,
+        }
+    )
+
+
+def _radiance(
+    mi, scene, integrator, cam: Camera, spp: int, seed: int, sampler: str
+) -> tuple[np.ndarray, int]:
+    """(H, W, 3) radiance and the sample count actually used (multijitter may round it)."""
+    sensor = _sensor(mi, cam, {"type": sampler, "sample_count": spp})
+    img = mi.render(scene, sensor=sensor, integrator=integrator, spp=spp, seed=seed)
+    return np.array(img, dtype=np.float32)[..., :3], int(sensor.sampler().sample_count())
+
+
+def _aovs(mi, scene, integrator, cam: Camera) -> dict[str, np.ndarray]:
+    sensor = _sensor(mi, cam, {"type": "stratified", "sample_count": 1, "jitter": False})
+    mi.render(scene, sensor=sensor, integrator=integrator, spp=1)
+    parts = dict(sensor.film().bitmap(raw=False).split())
+    return {k: np.array(v, dtype=np.float32) for k, v in parts.items()}
+
+
+def sanitize(x: np.ndarray, limit: float | None) -> tuple[np.ndarray, int]:
+    """Replace NaN/Inf by 0 and negatives by 0, clamp to `limit`; return (array, #replaced)."""
+    bad = ~np.isfinite(x)
+    n = int(bad.sum())
+    x = np.where(bad, 0.0, np.maximum(x, 0.0))
+    if limit is not None:
+        x = np.minimum(x, limit)
+    return x.astype(np.float32), n
+
+
+def auto_exposure(pilot: np.ndarray, target: float) -> float:
+    """Factor that brings the mean luminance (clipped at its 99th percentile) to `target`."""
+    lum = pilot @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lum = np.minimum(lum, np.percentile(lum, 99.0))
+    mean = float(lum.mean())
+    return float(np.clip(target / max(mean, 1e-6), 1e-3, 1e3))
+
+
+def albedo_table(mi, desc: dict) -> np.ndarray:
+    """(1 + #shapes, 3) albedo overrides by shape id (NaN: keep): emitters 1, conductors F0."""
+    materials = list(shape_materials(desc).values())
+    table = np.full((len(materials) + 1, 3), np.nan)
+    for i, mat in enumerate(materials):
+        if mat is None:
+            table[i + 1] = 1.0
+        elif mat["type"] in ("conductor", "roughconductor"):
+            table[i + 1] = conductor_f0(mi, mat["material"])
+    return table
+
+
+def decode_ids(code: np.ndarray) -> np.ndarray:
+    """Shape ids (0 = miss) from the red albedo of the id-pass scene."""
+    return np.rint(np.nan_to_num(code) * ID_SCALE).astype(np.int64)
+
+
+def _rgb(prefix: str, img: np.ndarray) -> dict[str, np.ndarray]:
+    return {f"{prefix}{c}": img[..., i] for i, c in enumerate("RGB")}
+
+
+def render_sequence(
+    out_dir: str | os.PathLike,
+    scene_seed: int,
+    cfg: RenderConfig,
+    *,
+    variant: str,
+    on_frame: Callable[[int], None] | None = None,
+    scene: dict | None = None,
+    cameras: list[Camera] | None = None,
+    meta_extra: dict | None = None,
+) -> dict:
+    """Render one sequence into `out_dir` (created); return its meta.json content.
+
+    The Mitsuba variant must already be set (see `variant.select_variant`). `scene`
+    (a `random_scene`-style description) and `cameras` override the ones drawn
+    from `scene_seed` (for tests and hand-made shots); `meta_extra` is merged into meta.json.
+    """
+    import mitsuba as mi
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in [*out.glob("frame_*.exr"), *out.glob("ref_*.exr"), out / "meta.json"]:
+        stale.unlink(missing_ok=True)
+
+    desc = scene if scene is not None else random_scene(scene_seed)
+    rng = np.random.default_rng(derive_seed(scene_seed, 1))
+    cams = orbit_path(rng, cfg.frames, cfg.width, cfg.height)
+    if cameras is not None:
+        cams = list(cameras)
+    mi_scene = build_scene(desc)
+    id_scene = build_scene(desc, id_pass=True)
+    alb_table = albedo_table(mi, desc)
+    path = mi.load_dict({"type": "path", "max_depth": cfg.max_depth})
+    aov = mi.load_dict({"type": "aov", "aovs": _AOVS})
+    aov_id = mi.load_dict({"type": "aov", "aovs": "id:albedo"})
+
+    pilot, _ = _radiance(
+        mi, mi_scene, path, cams[0], cfg.pilot_spp, derive_seed(scene_seed, 2), "independent"
+    )
+    target = float(rng.uniform(0.25, 0.6))
+    exposure = auto_exposure(np.nan_to_num(pilot, nan=0.0, posinf=0.0, neginf=0.0), target)
+    limit = HALF_MAX if cfg.half else None
+    replaced = 0
+    seeds = []
+    for t, cam in enumerate(cams):
+        s_a, s_b, s_ref = (derive_seed(scene_seed, 100 + t, k) for k in range(3))
+        seeds.append({"color": s_a, "colorB": s_b, "ref": s_ref})
+        imgs = [_radiance(mi, mi_scene, path, cam, 1, s, "independent")[0] for s in (s_a, s_b)]
+        ref_img, spp_ref = _radiance(mi, mi_scene, path, cam, cfg.spp_ref, s_ref, "multijitter")
+        imgs.append(ref_img)
+        clean = []
+        for img in imgs:
+            x, n = sanitize(img * exposure, limit)
+            replaced += n
+            clean.append(x)
+        noisy, noisy_b, ref = clean
+        a = _aovs(mi, mi_scene, aov, cam)
+        ids = decode_ids(_aovs(mi, id_scene, aov_id, cam)["id"][..., 0])
+        hit = ids > 0
+        albedo = override_albedo(a["albedo"], ids, alb_table)
+        prev = cams[t - 1] if t > 0 else None
+        feats = canonical_features(albedo, a["nn"], a["pp"], hit, cam, prev)
+        channels = {**_rgb("", noisy), **_rgb("colorB.", noisy_b), **feats}
+        write_exr(out / f"frame_{t:04d}.exr", channels, half=cfg.half)
+        write_exr(out / f"ref_{t:04d}.exr", _rgb("", ref), half=cfg.half)
+        if on_frame is not None:
+            on_frame(t)
+    if replaced:
+        warnings.warn(
+            f"{out}: replaced {replaced} NaN/Inf radiance values with 0", RuntimeWarning, 2
+        )
+    meta = {
+        "format": "rtdenoise-sequence-1",
+        "scene_seed": int(scene_seed),
+        "frame_count": len(cams),
+        "resolution": [cfg.width, cfg.height],
+        "spp": {"color": 1, "colorB": 1, "ref": spp_ref, "exposure_pilot": cfg.pilot_spp},
+        "storage": "float16" if cfg.half else "float32",
+        "renderer": {
+            "name": "mitsuba",
+            "version": mi.__version__,
+            "variant": variant,
+            "integrator": {"type": "path", "max_depth": cfg.max_depth},
+            "rfilter": "box",
+            "samplers": {"color": "independent", "ref": "multijitter", "features": "stratified"},
+        },
+        "exposure": exposure,
+        "nonfinite_replaced": replaced,
+        "seeds": seeds,
+        "cameras": [
+            {"frame": t, **{k: v for k, v in c.to_json().items() if k not in ("width", "height")}}
+            for t, c in enumerate(cams)
+        ],
+        "camera_model": "pinhole, fov in degrees along x (Mitsuba perspective, fov_axis=x)",
+        "conventions": {
+            "color": "linear HDR radiance, 1 spp, times `exposure`; colorB: independent seed",
+            "albedo": "aov albedo clamped to [0, 1]; conductors: RGB reflectance at normal "
+            f"incidence; emitters 1; background {BACKGROUND_ALBEDO}",
+            "normal": "camera space, x right, y up, z towards the camera, unit, facing the "
+            "camera; background 0",
+            "depth": f"planar view depth (world units); background {BACKGROUND_DEPTH}",
+            "motion": "pixels, previous position = current + motion, x right, y down; "
+            "background: environment direction seen by the previous camera; frame 0: 0",
+            "pixel_centres": "+0.5; features sampled at pixel centres, radiance box-filtered",
+        },
+        "scene": desc,
+        **(meta_extra or {}),
+    }
+    write_json_atomic(out / "meta.json", meta)
+    return meta
