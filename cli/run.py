@@ -19,6 +19,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
+
 from rtdenoise.cli.common import quiet_native_output, user_errors, warn, write_json
 from rtdenoise.runtime.backend import Backend, load_backend
 from rtdenoise.runtime.errors import InputError

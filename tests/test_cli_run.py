@@ -8,10 +8,11 @@ import math
 import numpy as np
 import OpenEXR
 import pytest
+from typer.testing import CliRunner
+
 from rtdenoise.cli.run import DEFAULT_MODEL, app
 from rtdenoise.runtime import metrics
 from rtdenoise.runtime.exr import read_exr, write_exr
-from typer.testing import CliRunner
 
 H, W = 64, 64
 runner = CliRunner()

@@ -15,6 +15,7 @@ from contract_models import (
     probe_model,
     samples_model,
 )
+
 from rtdenoise.runtime import ContractError, Denoiser, InputError, resolve_model
 
 TOL = {"rtol": 1e-5, "atol": 1e-6}

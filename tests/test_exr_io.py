@@ -7,6 +7,7 @@ import zlib
 
 import numpy as np
 import pytest
+
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.exr import read_exr, read_exr_header, write_exr
 from rtdenoise.runtime.preview import encode_png, to_uint8, write_png

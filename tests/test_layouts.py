@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 import pytest
+
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import (
     BUFFER_CHANNELS,

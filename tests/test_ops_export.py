@@ -11,10 +11,11 @@ import onnxruntime as ort
 import pytest
 import torch
 import torch.nn.functional as F
+from torch import nn
+
 from rtdenoise.export import ops as eops
 from rtdenoise.models import ops as tops
 from rtdenoise.runtime import fastops
-from torch import nn
 
 TOL = 1e-5
 

@@ -17,6 +17,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 import torch
+
 from rtdenoise.export import ops as eops
 from rtdenoise.models import ops as tops
 from rtdenoise.runtime import fastops

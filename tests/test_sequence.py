@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.exr import write_exr
 from rtdenoise.runtime.sequence import (
