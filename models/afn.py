@@ -1,0 +1,265 @@
+"""AFN: real-time Monte Carlo denoising with an adaptive fusion network (Lee24).
+
+`AFN.forward` reads like Lee24 Fig. 1:
+
+1. demodulate (III-A): irradiance r = color / (albedo + albedo_eps);
+2. temporal accumulation (III-A, "TA as in [2], [8], [17]"): `models.temporal` reprojects the
+   previous accumulation with the motion vectors, rejects it on depth / normal disagreement
+   or off-screen, and blends (moving average, weight max(min_alpha, 1 / (history + 1)));
+3. network input (III-A): tonemapped r_1spp and r_TA, albedo, normal in [0, 1], depth scaled
+   to [0, 1] per frame (+ the TA blend weight, see below);
+4. multi-scale kernel prediction M (III-B, eq. (1)): a light U-Net autoencoder; K_1spp (k x k
+   taps, softmax) is sliced from the 1/2-scale decoder feature, K_TA (softmax) and the fusion
+   weight alpha (sigmoid) from the full-scale one;
+5. filtering (III-C, eq. (2)) on HDR values: d_1spp = KernelApply(D r_1spp, K_1spp) at half
+   resolution, d_TA = KernelApply(r_TA, K_TA) at full resolution;
+6. adaptive fusion (eq. (3)): i = d_TA - alpha U D d_TA + alpha U d_1spp;
+7. refinement (eq. (4)): o = i + R(i, f), a small conv net;
+8. remodulate: output = o * (albedo + albedo_eps).
+
+Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
+- albedo_eps = 1e-2 in demodulation and remodulation (exactly invertible; zero albedo, e.g.
+  the background, keeps its radiance as 100 x irradiance).
+- TA: `models.temporal.TemporalConfig` (relative depth tolerance 0.1, normal dot > 0.9,
+  min_alpha 0.2 = Meng20's history weight 0.8). History lives in the `ta` state (r_TA and the
+  history length) and the `geometry` state (normal and depth of the last frame).
+- Tonemap of the network input: log1p (Bako17, the [6] that Lee24 cites for HDR inputs).
+- Depth scaling "log": log1p(d) / log1p(max d) per frame (maps [0, max] to [0, 1] like the
+  paper's linear scaling, but keeps resolution on the foreground when the background depth
+  is huge, e.g. 1e4); "linear": d / max d (the paper's text).
+- `history_input`: the TA blend weight a (1 on fresh pixels, min_alpha on converged ones) is
+  an extra input channel so the network knows how reliable r_TA is (not in the paper).
+- Autoencoder: `widths` per scale (default 24, 32, 48 at 1, 1/2, 1/4), two 3 x 3 convs + ReLU
+  per scale, 2 x 2 average pooling down, nearest 2 x upsampling + skip concatenation up.
+  Heads are 1 x 1 convs. Kernel size 7 for both kernels (the paper's k).
+- Refinement R: `refine_layers` 3 x 3 convs of width `refine_width` on
+  [log1p(i), albedo, normal, depth]; the residual is added in the log1p domain,
+  o = expm1(max(log1p(max(i, 0)) + R, 0)), which keeps the output >= 0 (the fused image can
+  be slightly negative: eq. (3) is an unsharp-mask-like difference).
+- H and W must be multiples of `pad_multiple` = 2 ** (len(widths) - 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from . import ops
+from .base import DenoiserModel, StateSpec
+from .temporal import TemporalConfig, temporal_accumulation
+
+
+@dataclass(frozen=True)
+class AFNConfig:
+    """Sizes and constants of the AFN model (see the module docstring)."""
+
+    widths: tuple[int, ...] = (24, 32, 48)
+    kernel_size: int = 7
+    refine_width: int = 16
+    refine_layers: int = 3
+    albedo_eps: float = 1e-2
+    depth_scale: str = "log"  # "log" or "linear"
+    history_input: bool = True
+    depth_tolerance: float = 0.1
+    normal_threshold: float = 0.9
+    min_alpha: float = 0.2
+    max_history: float = 64.0
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> AFNConfig:
+        """Defaults overridden by `data`; unknown keys raise ValueError naming them."""
+        data = dict(data or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown afn config keys {unknown}; known: {sorted(known)}")
+        if "widths" in data:
+            data["widths"] = tuple(int(w) for w in data["widths"])
+        config = cls(**data)
+        config.validate()
+        return config
+
+    def validate(self) -> None:
+        if len(self.widths) < 2 or any(w < 1 for w in self.widths):
+            raise ValueError(f"afn widths must list >= 2 positive sizes, got {self.widths}")
+        if self.kernel_size < 1 or self.kernel_size % 2 == 0:
+            raise ValueError(f"afn kernel_size must be odd, got {self.kernel_size}")
+        if self.refine_layers < 1:
+            raise ValueError(f"afn refine_layers must be >= 1, got {self.refine_layers}")
+        if self.depth_scale not in ("log", "linear"):
+            raise ValueError(f"afn depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
+
+    def to_dict(self) -> dict:
+        data = asdict(self)
+        data["widths"] = list(self.widths)
+        return data
+
+    def temporal(self) -> TemporalConfig:
+        return TemporalConfig(
+            depth_tolerance=self.depth_tolerance,
+            normal_threshold=self.normal_threshold,
+            min_alpha=self.min_alpha,
+            max_history=self.max_history,
+        )
+
+
+def _conv_block(c_in: int, c_out: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, 3, padding=1),
+        nn.ReLU(inplace=True),
+        nn.Conv2d(c_out, c_out, 3, padding=1),
+        nn.ReLU(inplace=True),
+    )
+
+
+class KernelPredictor(nn.Module):
+    """Lee24 eq. (1): M(r_1spp, r_TA, f) -> K_1spp (1/2 scale), K_TA and alpha (full scale)."""
+
+    def __init__(self, in_channels: int, widths: tuple[int, ...], kernel_size: int) -> None:
+        super().__init__()
+        taps = kernel_size * kernel_size
+        self.encoders = nn.ModuleList()
+        c = in_channels
+        for w in widths:
+            self.encoders.append(_conv_block(c, w))
+            c = w
+        # decoders[l] produces the feature at scale 1 / 2**l from the one below and skip l.
+        self.decoders = nn.ModuleList(
+            _conv_block(widths[level + 1] + widths[level], widths[level])
+            for level in range(len(widths) - 1)
+        )
+        self.head_1spp = nn.Conv2d(widths[1], taps, 1)
+        self.head_ta = nn.Conv2d(widths[0], taps + 1, 1)
+        self.taps = taps
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        skips = []
+        for level, encoder in enumerate(self.encoders):
+            if level > 0:
+                x = F.avg_pool2d(x, 2)
+            x = encoder(x)
+            skips.append(x)
+        features = [x]
+        for level in range(len(self.decoders) - 1, -1, -1):
+            up = F.interpolate(x, scale_factor=2.0, mode="nearest")
+            x = self.decoders[level](torch.cat((up, skips[level]), dim=1))
+            features.append(x)
+        half, full = features[-2], features[-1]
+        k_1spp = torch.softmax(self.head_1spp(half), dim=1)
+        head = self.head_ta(full)
+        k_ta = torch.softmax(head[:, : self.taps], dim=1)
+        alpha = torch.sigmoid(head[:, self.taps :])
+        return k_1spp, k_ta, alpha
+
+
+class Refinement(nn.Module):
+    """Lee24 eq. (4): the residual R(i, f), a plain conv net (ReLU between layers)."""
+
+    def __init__(self, in_channels: int, width: int, layers: int) -> None:
+        super().__init__()
+        mods: list[nn.Module] = []
+        c = in_channels
+        for _ in range(layers - 1):
+            mods += [nn.Conv2d(c, width, 3, padding=1), nn.ReLU(inplace=True)]
+            c = width
+        last = nn.Conv2d(c, 3, 3, padding=1)
+        with torch.no_grad():  # start close to the identity o = i, but keep gradients alive
+            last.weight.mul_(0.1)
+            last.bias.zero_()
+        mods.append(last)
+        self.net = nn.Sequential(*mods)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+class AFN(DenoiserModel):
+    """Lee24 adaptive fusion network with temporal accumulation (see the module docstring)."""
+
+    family = "afn"
+    inputs = ("color", "albedo", "normal", "depth", "motion")
+    state_specs = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))
+    input_note = (
+        "pass linear HDR radiance (color), albedo, normal in [-1, 1], linear view depth and "
+        "motion in pixels (previous = current + motion); do NOT demodulate, tonemap, "
+        "accumulate or normalise: the graph does it"
+    )
+
+    def __init__(self, config: AFNConfig | dict | None = None) -> None:
+        super().__init__()
+        if not isinstance(config, AFNConfig):
+            config = AFNConfig.from_dict(config)
+        config.validate()
+        self.cfg = config
+        self.pad_multiple = 2 ** (len(config.widths) - 1)
+        self._temporal = config.temporal()
+        # r_1spp (3) + r_TA (3) + albedo (3) + normal (3) + depth (1) [+ TA weight (1)]
+        in_channels = 13 + int(config.history_input)
+        self.predictor = KernelPredictor(in_channels, config.widths, config.kernel_size)
+        self.refine = Refinement(7 + 3, config.refine_width, config.refine_layers)
+
+    def config(self) -> dict:
+        return self.cfg.to_dict()
+
+    def _depth01(self, depth: torch.Tensor) -> torch.Tensor:
+        """Depth scaled to [0, 1] per frame (Lee24 III-A)."""
+        if self.cfg.depth_scale == "log":
+            depth = torch.log1p(depth)
+        return depth / (depth.amax(dim=(1, 2, 3), keepdim=True) + 1e-6)
+
+    def forward(
+        self,
+        buffers: dict[str, torch.Tensor],
+        state: dict[str, torch.Tensor],
+        reset: torch.Tensor,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        color = torch.clamp(buffers["color"], min=0.0)
+        albedo = torch.clamp(buffers["albedo"], min=0.0)
+        normal = buffers["normal"]
+        depth = torch.clamp(buffers["depth"], min=0.0)
+        motion = buffers["motion"]
+
+        # 1. Demodulation (Lee24 III-A, after Chaitanya17).
+        modulation = albedo + self.cfg.albedo_eps
+        r_1spp = color / modulation
+
+        # 2. Temporal accumulation (Lee24 III-A): r_TA and the blend weight a.
+        r_ta, blend, next_ta, next_geometry = temporal_accumulation(
+            r_1spp, motion, depth, normal, state["ta"], state["geometry"], reset, self._temporal
+        )
+
+        # 3. Network input: tonemapped radiance, features scaled to [0, 1] (Lee24 III-A).
+        features = torch.cat((albedo, 0.5 * (normal + 1.0), self._depth01(depth)), dim=1)
+        net_in = [torch.log1p(r_1spp), torch.log1p(r_ta), features]
+        if self.cfg.history_input:
+            net_in.append(blend)
+
+        # 4. Multi-scale kernel prediction, Lee24 eq. (1).
+        k_1spp, k_ta, alpha = self.predictor(torch.cat(net_in, dim=1))
+
+        # 5. Filtering on HDR values, Lee24 eq. (2): 1 spp at 1/2 scale, TA at full scale.
+        d_1spp = ops.kernel_apply(F.avg_pool2d(r_1spp, 2), k_1spp)
+        d_ta = ops.kernel_apply(r_ta, k_ta)
+
+        # 6. Adaptive fusion, Lee24 eq. (3).
+        fused = ops.adaptive_fusion(d_ta, d_1spp, alpha)
+
+        # 7. Refinement, Lee24 eq. (4), residual in the log1p domain (output >= 0).
+        log_fused = torch.log1p(torch.clamp(fused, min=0.0))
+        residual = self.refine(torch.cat((log_fused, features), dim=1))
+        refined = torch.expm1(torch.clamp(log_fused + residual, min=0.0))
+
+        # 8. Remodulation.
+        output = refined * modulation
+        return output, {"ta": next_ta, "geometry": next_geometry}
+
+
+def parameter_count(model: nn.Module) -> int:
+    """Number of trainable parameters."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+__all__ = ["AFN", "AFNConfig", "KernelPredictor", "Refinement", "parameter_count"]

@@ -1,0 +1,121 @@
+"""Checkpoints: plain dicts `{"family", "config", "state_dict", "meta"}` (design.md s.4).
+
+Never a pickled module: files load with `torch.load(weights_only=True)`. Training
+checkpoints carry one more key, `"train"` (optimizer state, step, RNG states) that
+`load_checkpoint` ignores and `load_training_state` returns.
+Writes are atomic (temp file in the same folder, then rename).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from rtdenoise.runtime.errors import InputError
+
+from .base import DenoiserModel
+from .registry import build_model
+
+REQUIRED_KEYS = ("family", "config", "state_dict", "meta")
+
+
+class CheckpointError(InputError):
+    """A file that is not a valid rtdenoise checkpoint (message names the file)."""
+
+
+def save_checkpoint(
+    path: str | os.PathLike,
+    model: DenoiserModel,
+    meta: dict | None = None,
+    train: dict | None = None,
+) -> Path:
+    """Write `model` (family, config, weights) and `meta` to `path` atomically.
+
+    `train` (optional) holds what resuming needs: optimizer state, step, RNG states.
+    """
+    path = Path(path)
+    ckpt: dict[str, Any] = {
+        "family": model.family,
+        "config": model.config(),
+        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "meta": dict(meta or {}),
+    }
+    if train is not None:
+        ckpt["train"] = train
+    folder = path.parent
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    os.close(fd)
+    try:
+        torch.save(ckpt, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def _reason(exc: Exception) -> str:
+    """The informative line of a torch.load error (weights_only errors are long)."""
+    text = str(exc)
+    marker = "WeightsUnpickler error:"
+    if marker in text:
+        text = text.split(marker, 1)[1]
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    return lines[0].split(". Please")[0] if lines else type(exc).__name__
+
+
+def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
+    """The raw checkpoint dict, loaded with weights_only=True and checked for its keys."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint file")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # pickle / zip errors, or a forbidden global in the pickle
+        raise CheckpointError(f"{path}: not an rtdenoise checkpoint ({_reason(exc)})") from exc
+    if not isinstance(ckpt, dict) or any(k not in ckpt for k in REQUIRED_KEYS):
+        keys = sorted(ckpt) if isinstance(ckpt, dict) else type(ckpt).__name__
+        raise CheckpointError(
+            f"{path}: not an rtdenoise checkpoint (expected keys {list(REQUIRED_KEYS)}, got {keys})"
+        )
+    return ckpt
+
+
+def model_from_checkpoint(ckpt: dict[str, Any], path: str | os.PathLike) -> DenoiserModel:
+    """Build the checkpoint's model and load its weights; errors name `path`."""
+    path = Path(path)
+    try:
+        model = build_model(ckpt["family"], ckpt["config"])
+    except (ValueError, TypeError) as exc:
+        raise CheckpointError(f"{path}: {exc}") from exc
+    try:
+        model.load_state_dict(ckpt["state_dict"], strict=True)
+    except (RuntimeError, TypeError, AttributeError) as exc:
+        first = str(exc).strip().splitlines()[0]
+        raise CheckpointError(
+            f"{path}: state_dict does not match the {ckpt['family']} model ({first})"
+        ) from exc
+    return model
+
+
+def load_checkpoint(path: str | os.PathLike) -> tuple[DenoiserModel, dict]:
+    """(model in eval mode with its stored weights, meta); CheckpointError names the file."""
+    ckpt = read_checkpoint(path)
+    model = model_from_checkpoint(ckpt, path)
+    model.eval()
+    return model, dict(ckpt["meta"])
+
+
+def load_training_state(path: str | os.PathLike) -> tuple[DenoiserModel, dict, dict]:
+    """(model in train mode, meta, train state) of a training checkpoint, for resuming."""
+    ckpt = read_checkpoint(path)
+    if "train" not in ckpt:
+        raise CheckpointError(f"{path}: checkpoint has no training state to resume from")
+    model = model_from_checkpoint(ckpt, path)
+    model.train()
+    return model, dict(ckpt["meta"]), ckpt["train"]

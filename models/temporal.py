@@ -1,0 +1,141 @@
+"""Temporal reprojection, history validity and accumulation (TA) in standard torch ops.
+
+Everything here exports to standard ONNX ops (GridSample opset 16+, Where, ReduceSum, ...):
+no Python branching on tensor values, sizes only through tensor shape ops, so it can live
+inside an exported model graph with dynamic H and W.
+
+Conventions (design.md s.3/s.7): motion vectors are in pixels, x right, y down, and point
+from the current pixel to its previous position: previous = current + motion. Pixel (x, y)
+has its centre at integer coordinates; sampling is bilinear.
+
+TA follows the reprojection-with-rejection scheme that Lee24 s.III-A adopts from Meng20,
+Fan21 and Koskela19 (BMFR) (Lee24 refs. [2], [8], [17]; the classic Yang09 / SVGF
+exponential moving average): reproject the previous accumulation, reject it where the
+previous frame saw another surface (out of screen, depth or normal disagreement), then blend
+with weight a = max(a_min, 1 / (history + 1)) so that the first frames average uniformly and
+later frames converge to an exponential moving average with weight a_min (0.2 = Meng20's
+history weight 0.8).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+
+@dataclass(frozen=True)
+class TemporalConfig:
+    """Thresholds of the history test and the accumulation weights."""
+
+    depth_tolerance: float = 0.1  # valid if |d_prev - d| < depth_tolerance * d
+    normal_threshold: float = 0.9  # valid if dot(n_prev, n) > normal_threshold
+    min_alpha: float = 0.2  # a_min: weight of the current frame in the moving average
+    max_history: float = 64.0  # history length is clamped (keeps the state bounded)
+
+
+def pixel_grid(motion: torch.Tensor) -> torch.Tensor:
+    """grid_sample coordinates (N, H, W, 2) of `current + motion` (align_corners=False)."""
+    h, w = motion.shape[-2], motion.shape[-1]
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype)
+    px = xs.view(1, 1, w) + motion[:, 0]  # previous x in pixels, (N, H, W)
+    py = ys.view(1, h, 1) + motion[:, 1]
+    # align_corners=False: pixel centre x maps to (2 x + 1) / W - 1.
+    gx = (2.0 * px + 1.0) / w - 1.0
+    gy = (2.0 * py + 1.0) / h - 1.0
+    return torch.stack((gx, gy), dim=-1)
+
+
+def in_bounds(motion: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) bool: the previous position lies inside the previous frame's pixels."""
+    h, w = motion.shape[-2], motion.shape[-1]
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
+    px = xs + motion[:, 0]
+    py = ys + motion[:, 1]
+    inside = (px >= -0.5) & (px <= w - 0.5) & (py >= -0.5) & (py <= h - 0.5)
+    return inside.unsqueeze(1)
+
+
+def reproject(previous: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
+    """Bilinearly sample `previous` (N, C, H, W) at current + motion (edge-clamped).
+
+    Out-of-screen positions read the border; combine with `in_bounds` to reject them.
+    """
+    grid = pixel_grid(motion)
+    return F.grid_sample(
+        previous, grid, mode="bilinear", padding_mode="border", align_corners=False
+    )
+
+
+def history_validity(
+    motion: torch.Tensor,
+    depth: torch.Tensor,
+    normal: torch.Tensor,
+    prev_depth: torch.Tensor,
+    prev_normal: torch.Tensor,
+    reset: torch.Tensor,
+    config: TemporalConfig = TemporalConfig(),
+) -> torch.Tensor:
+    """(N, 1, H, W) float in {0, 1}: where the reprojected history may be used.
+
+    prev_depth / prev_normal are the previous frame's geometry already reprojected to the
+    current pixels. Valid = in bounds & relative depth agreement & normal agreement & not
+    reset. Pixels with a zero normal (background) never pass the normal test.
+    """
+    depth_ok = (prev_depth - depth).abs() < config.depth_tolerance * depth.abs()
+    normal_ok = (prev_normal * normal).sum(dim=1, keepdim=True) > config.normal_threshold
+    valid = (in_bounds(motion) & depth_ok & normal_ok).to(depth.dtype)
+    return valid * (1.0 - reset)  # reset = 1 ignores the history, arithmetically
+
+
+def accumulate(
+    current: torch.Tensor,
+    history: torch.Tensor,
+    history_len: torch.Tensor,
+    valid: torch.Tensor,
+    config: TemporalConfig = TemporalConfig(),
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Blend `current` with the reprojected `history` (Yang09 / SVGF moving average).
+
+    history_len: reprojected number of accumulated frames (N, 1, H, W); valid: (N, 1, H, W).
+    Returns (accumulated, new history length, blend weight a). Where invalid, the history is
+    dropped with `where` (not a multiply) so a non-finite history can never leak through.
+    """
+    ok = valid > 0.5
+    n_prev = torch.where(ok, history_len, torch.zeros_like(history_len))
+    hist = torch.where(ok, history, torch.zeros_like(history))
+    alpha = torch.clamp(1.0 / (n_prev + 1.0), min=config.min_alpha)
+    acc = alpha * current + (1.0 - alpha) * hist
+    new_len = torch.clamp(n_prev + 1.0, max=config.max_history)
+    return acc, new_len, alpha
+
+
+def temporal_accumulation(
+    current: torch.Tensor,
+    motion: torch.Tensor,
+    depth: torch.Tensor,
+    normal: torch.Tensor,
+    ta_state: torch.Tensor,
+    geometry_state: torch.Tensor,
+    reset: torch.Tensor,
+    config: TemporalConfig = TemporalConfig(),
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One TA step on C-channel `current` (N, C, H, W).
+
+    ta_state: (N, C + 1, H, W) previous accumulation and its history length;
+    geometry_state: (N, 4, H, W) previous normal (3) and depth (1).
+    Returns (accumulated (N, C, H, W), blend weight a (N, 1, H, W), next ta_state,
+    next geometry_state).
+    """
+    c = current.shape[1]
+    warped = reproject(torch.cat((ta_state, geometry_state), dim=1), motion)
+    history, history_len = warped[:, :c], warped[:, c : c + 1]
+    prev_normal, prev_depth = warped[:, c + 1 : c + 4], warped[:, c + 4 : c + 5]
+    valid = history_validity(motion, depth, normal, prev_depth, prev_normal, reset, config)
+    acc, new_len, alpha = accumulate(current, history, history_len, valid, config)
+    next_ta = torch.cat((acc, new_len), dim=1)
+    next_geometry = torch.cat((normal, depth), dim=1)
+    return acc, alpha, next_ta, next_geometry

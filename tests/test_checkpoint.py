@@ -1,0 +1,107 @@
+"""Checkpoints: plain dicts loaded with weights_only=True; clear errors naming the file."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from rtdenoise.models.checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    load_training_state,
+    read_checkpoint,
+    save_checkpoint,
+)
+from rtdenoise.models.registry import build_model
+from rtdenoise.runtime.errors import InputError
+
+SMALL = {"widths": [8, 12], "kernel_size": 3, "refine_width": 8, "refine_layers": 2}
+
+
+class Payload:
+    """Stands for any object a malicious pickle could carry."""
+
+
+@pytest.fixture()
+def model():
+    torch.manual_seed(0)
+    return build_model("afn", SMALL)
+
+
+def test_save_load_roundtrip_is_a_plain_dict(tmp_path, model):
+    path = save_checkpoint(tmp_path / "m.pt", model, {"step": 3})
+    raw = torch.load(path, weights_only=True)  # loads with no custom class allowed
+    assert set(raw) == {"family", "config", "state_dict", "meta"}
+    assert raw["family"] == "afn" and raw["config"]["widths"] == [8, 12]
+    loaded, meta = load_checkpoint(path)
+    assert meta == {"step": 3} and not loaded.training
+    for k, v in model.state_dict().items():
+        assert torch.equal(loaded.state_dict()[k], v)
+    assert [p.name for p in tmp_path.iterdir()] == ["m.pt"]  # no temp file left behind
+
+
+def test_overwrite_is_atomic_and_keeps_training_state(tmp_path, model):
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, model, {"step": 1})
+    save_checkpoint(path, model, {"step": 2}, train={"step": 2, "rng": {"x": [1, 2]}})
+    m2, meta, train = load_training_state(path)
+    assert meta["step"] == 2 and train == {"step": 2, "rng": {"x": [1, 2]}} and m2.training
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.pt"]
+    save_checkpoint(path, model, {})
+    with pytest.raises(CheckpointError, match="no training state"):
+        load_training_state(path)
+
+
+def test_not_a_checkpoint_names_the_file(tmp_path):
+    text = tmp_path / "notes.txt"
+    text.write_text("hello, I am not a checkpoint\n")
+    with pytest.raises(CheckpointError, match=r"notes\.txt: not an rtdenoise checkpoint"):
+        load_checkpoint(text)
+    with pytest.raises(CheckpointError, match=r"missing\.pt: no such checkpoint"):
+        load_checkpoint(tmp_path / "missing.pt")
+    other = tmp_path / "tensor.pt"
+    torch.save(torch.zeros(3), other)
+    with pytest.raises(CheckpointError, match=r"tensor\.pt: not an rtdenoise checkpoint"):
+        load_checkpoint(other)
+    assert issubclass(CheckpointError, InputError)
+
+
+def test_pickled_objects_are_refused(tmp_path, model):
+    """weights_only=True: a checkpoint smuggling an arbitrary object is rejected, not run."""
+    path = tmp_path / "evil.pt"
+    ckpt = {
+        "family": "afn",
+        "config": model.config(),
+        "state_dict": model.state_dict(),
+        "meta": {"obj": Payload()},  # a class weights_only does not allow
+    }
+    torch.save(ckpt, path)
+    with pytest.raises(CheckpointError, match=r"evil\.pt: not an rtdenoise checkpoint"):
+        read_checkpoint(path)
+    with pytest.raises(CheckpointError, match="Payload"):  # the reason names the class
+        load_checkpoint(path)
+
+
+def test_unknown_family_and_bad_state_dict(tmp_path, model):
+    good = {
+        "family": "afn",
+        "config": model.config(),
+        "state_dict": model.state_dict(),
+        "meta": {},
+    }
+    path = tmp_path / "fam.pt"
+    torch.save(dict(good, family="warp9"), path)
+    with pytest.raises(CheckpointError, match=r"fam\.pt: unknown model family 'warp9'"):
+        load_checkpoint(path)
+    torch.save(dict(good, config=dict(good["config"], bogus=1)), path)
+    with pytest.raises(CheckpointError, match=r"fam\.pt: unknown afn config keys \['bogus'\]"):
+        load_checkpoint(path)
+    sd = dict(good["state_dict"])
+    sd.pop(next(iter(sd)))
+    torch.save(dict(good, state_dict=sd), path)
+    with pytest.raises(CheckpointError, match=r"fam\.pt: state_dict does not match the afn"):
+        load_checkpoint(path)
+    wider = build_model("afn", dict(SMALL, widths=[8, 16])).state_dict()
+    torch.save(dict(good, state_dict=wider), path)
+    with pytest.raises(CheckpointError, match=r"fam\.pt: state_dict does not match"):
+        load_checkpoint(path)

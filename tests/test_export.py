@@ -1,0 +1,102 @@
+"""The exporter on a small model with state: contract names, metadata, dynamic sizes, validation."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+import torch
+from torch import nn
+
+from rtdenoise.export.onnx_export import export_model
+from rtdenoise.export.validate import synthetic_frames, torch_outputs, validate
+from rtdenoise.models.base import DenoiserModel, StateSpec
+from rtdenoise.runtime.atomic import write_bytes_atomic as write_atomic
+from rtdenoise.runtime.denoiser import Denoiser
+
+
+class EmaDenoiser(DenoiserModel):
+    """Conv on color+albedo, exponential moving average kept as full- and half-resolution state."""
+
+    family = "test-ema"
+    inputs = ("color", "albedo")
+    state_specs = (StateSpec("acc", 3, 1), StateSpec("low", 3, 2))
+    pad_multiple = 4
+
+    def __init__(self) -> None:
+        super().__init__()
+        torch.manual_seed(0)
+        self.conv = nn.Conv2d(6, 3, 3, padding=1)
+        self.pool = nn.AvgPool2d(2)
+
+    def forward(self, buffers, state, reset):
+        x = self.conv(torch.cat([buffers["color"], buffers["albedo"]], 1))
+        keep = 0.8 * (1.0 - reset)
+        acc = keep * state["acc"] + (1.0 - keep) * x
+        low = keep * state["low"] + (1.0 - keep) * self.pool(x)
+        out = acc + nn.functional.interpolate(low, scale_factor=2.0, mode="nearest")
+        return out, {"acc": acc, "low": low}
+
+    def config(self) -> dict:
+        return {"width": 3}
+
+
+@pytest.fixture(scope="module")
+def exported() -> tuple[EmaDenoiser, onnx.ModelProto]:
+    model = EmaDenoiser().eval()
+    return model, export_model(model)
+
+
+def test_contract_names_and_metadata(exported):
+    _, proto = exported
+    inputs = [i.name for i in proto.graph.input]
+    outputs = [o.name for o in proto.graph.output]
+    assert inputs == ["color", "albedo", "reset", "state.acc", "state.low"]
+    assert outputs == ["output", "state_next.acc", "state_next.low"]
+    meta = {p.key: p.value for p in proto.metadata_props}
+    assert meta["rtdenoise.contract"] == "1"
+    assert meta["rtdenoise.family"] == "test-ema"
+    assert json.loads(meta["rtdenoise.state"]) == [
+        {"name": "acc", "channels": 3, "scale": 1},
+        {"name": "low", "channels": 3, "scale": 2},
+    ]
+    assert meta["rtdenoise.pad_multiple"] == "4"
+    assert json.loads(meta["rtdenoise.inputs"])["buffers"] == ["color", "albedo"]
+    assert proto.ir_version == 10
+    reset = next(i for i in proto.graph.input if i.name == "reset")
+    assert len(reset.type.tensor_type.shape.dim) == 0
+
+
+def test_validation_over_eight_frames_at_two_sizes(exported):
+    model, proto = exported
+    for h, w in [(32, 48), (20, 12)]:
+        frames = synthetic_frames(model.inputs, 8, h, w)
+        report = validate(model, proto.SerializeToString(), frames, tolerance=1e-4)
+        assert report.passed, report.errors
+        assert set(report.errors) == {"ort_fast", "ort_portable"}
+        assert all(len(v) == 8 for v in report.errors.values())
+
+
+def test_state_really_carries_over(exported):
+    """Frame 1 of a sequence differs from frame 1 denoised alone: history is used."""
+    model, proto = exported
+    frames = synthetic_frames(model.inputs, 2, 16, 16)
+    denoiser = Denoiser(proto.SerializeToString())
+    denoiser.process(frames[0])
+    with_history = denoiser.process(frames[1])
+    alone = torch_outputs(model, frames[1:])[0]
+    assert np.max(np.abs(with_history - alone)) > 1e-2
+
+
+def test_write_atomic_leaves_nothing_on_failure(tmp_path, monkeypatch):
+    target = tmp_path / "m.onnx"
+
+    def boom(*_args, **_kwargs):
+        raise OSError("disk full")
+
+    monkeypatch.setattr("os.replace", boom)
+    with pytest.raises(OSError):
+        write_atomic(target, b"data")
+    assert list(tmp_path.iterdir()) == []
