@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .common import fail, user_errors
+from .common import fail, passive_openmp_threads, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 console = Console()
@@ -100,6 +100,7 @@ def bench(
 
 
 def main() -> None:
+    passive_openmp_threads()
     app()
 
 

@@ -9,9 +9,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from .common import fail, passive_openmp_threads, user_errors
+
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 console = Console()
-err_console = Console(stderr=True)
 
 
 def resolve_checkpoint(spec: str) -> Path:
@@ -48,20 +49,14 @@ def export(
     written only if ONNX Runtime (fast kernels and portable path) matches PyTorch over a
     multi-frame sequence with state fed back.
     """
-    from rtdenoise.export.pipeline import ExportValidationError, export_checkpoint
+    from rtdenoise.export.pipeline import export_checkpoint
 
-    try:
+    with user_errors():
         ckpt = resolve_checkpoint(checkpoint)
         if output.is_dir():
-            raise ValueError(f"{output}: is a folder; give the .onnx file to write")
+            fail(f"{output}: is a folder; give the .onnx file to write")
         with console.status(f"exporting {ckpt.name} ..."):
             report = export_checkpoint(ckpt, output, frames=frames, size=size, tolerance=tolerance)
-    except ExportValidationError as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(1) from exc
-    except (OSError, ValueError, KeyError) as exc:
-        err_console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from exc
 
     summary = Table(title=f"{report.family} -> {output}", show_header=False)
     summary.add_row("nodes", str(report.nodes))
@@ -70,7 +65,8 @@ def export(
     summary.add_row("parameters", f"{report.parameters:,}")
     summary.add_row("size", f"{report.size_bytes / 1024:.1f} KiB")
     console.print(summary)
-    errors = Table(title=f"validation, {report.frame_size[0]}x{report.frame_size[1]}")
+    h, w = report.frame_size
+    errors = Table(title=f"validation: {report.source}, {h}x{w}, state fed back")
     errors.add_column("frame", justify="right")
     paths = list(report.validation.errors)
     for path in paths:
@@ -85,6 +81,7 @@ def export(
 
 
 def main() -> None:
+    passive_openmp_threads()
     app()
 
 

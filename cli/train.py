@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import shlex
 import sys
 from pathlib import Path
@@ -11,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from rtdenoise.cli.common import fail, user_errors
+from rtdenoise.cli.common import fail, passive_openmp_threads, user_errors
 
 app = typer.Typer(
     add_completion=False,
@@ -134,10 +133,7 @@ def train_command(
 
 def main() -> None:
     """Console-script entry point."""
-    # Sleeping (not spinning) OpenMP workers: on a shared 2-core machine, spinning threads
-    # made a 2-thread training step 40x slower (21 s vs 0.5 s, measured). Read by libgomp
-    # when torch loads, so it must be set before the first `import torch`.
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+    passive_openmp_threads()
     app()
 
 

@@ -31,6 +31,7 @@ class ExportReport:
     size_bytes: int
     validation: ValidationReport
     frame_size: tuple[int, int]
+    source: str
 
 
 def validation_frames(
@@ -79,7 +80,7 @@ def export_checkpoint(
     model.eval()
     proto = export_model(model)
     data = proto.SerializeToString()
-    seq, _source = validation_frames(model, frames, size)
+    seq, source = validation_frames(model, frames, size)
     report = validate(model, data, seq, tolerance=tolerance)
     nodes, custom = count_nodes(proto)
     params = sum(int(np.prod(t.dims)) for t in proto.graph.initializer)
@@ -91,7 +92,8 @@ def export_checkpoint(
         parameters=params,
         size_bytes=len(data),
         validation=report,
-        frame_size=tuple(seq[0]["color"].shape[-2:]) if "color" in seq[0] else (size, size),
+        frame_size=tuple(seq[0][model.inputs[0]].shape[-2:]),
+        source=source,
     )
     if not report.passed:
         raise ExportValidationError(

@@ -1,0 +1,59 @@
+"""`denoise-export` end to end: writes a validated file, or refuses and writes nothing."""
+
+from __future__ import annotations
+
+import json
+
+import onnx
+import pytest
+from typer.testing import CliRunner
+
+from rtdenoise.cli.export import app
+from rtdenoise.models.checkpoint import save_checkpoint
+from rtdenoise.models.registry import build_model
+
+runner = CliRunner()
+SMALL_AFN = {"widths": [8, 12], "refine_width": 8, "refine_layers": 2}
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    path = tmp_path_factory.mktemp("ckpt") / "afn.pt"
+    save_checkpoint(path, build_model("afn", SMALL_AFN), {"note": "untrained"})
+    return path
+
+
+def test_export_writes_validated_model(checkpoint, tmp_path):
+    out = tmp_path / "afn.onnx"
+    result = runner.invoke(app, [str(checkpoint), "-o", str(out), "--frames", "8", "--size", "32"])
+    assert result.exit_code == 0, result.output
+    assert "KernelApply x2" in result.output and "AdaptiveFusion x1" in result.output
+    model = onnx.load(str(out))
+    meta = {p.key: p.value for p in model.metadata_props}
+    assert meta["rtdenoise.family"] == "afn"
+    assert json.loads(meta["rtdenoise.config"])["widths"] == [8, 12]
+    assert {f.name for f in model.functions} == {"KernelApply", "AdaptiveFusion"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afn.onnx"]
+
+
+def test_export_refuses_when_validation_fails(checkpoint, tmp_path):
+    out = tmp_path / "afn.onnx"
+    result = runner.invoke(
+        app, [str(checkpoint), "-o", str(out), "--size", "32", "--frames", "2", "--tolerance", "-1"]
+    )
+    assert result.exit_code == 1
+    assert "disagrees with PyTorch" in result.output and "not written" in result.output
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("content", [None, b"not a checkpoint"])
+def test_export_bad_checkpoint_is_one_line_error(tmp_path, content):
+    ckpt = tmp_path / "model.pt"
+    if content is not None:
+        ckpt.write_bytes(content)
+    out = tmp_path / "m.onnx"
+    result = runner.invoke(app, [str(ckpt), "-o", str(out)])
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:") and "model.pt" in lines[0]
+    assert not out.exists()
