@@ -13,6 +13,7 @@ from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.checkpoint import load_checkpoint
 from rtdenoise.runtime.atomic import write_bytes_atomic
 
+from .deploy import to_deploy
 from .onnx_export import export_model
 from .validate import ValidationReport, synthetic_frames, validate
 
@@ -83,7 +84,7 @@ def export_checkpoint(
     seq, source = validation_frames(model, frames, size)
     report = validate(model, data, seq, tolerance=tolerance)
     nodes, custom = count_nodes(proto)
-    params = sum(int(np.prod(t.dims)) for t in proto.graph.initializer)
+    params = sum(p.numel() for p in to_deploy(model).parameters())  # folded, as deployed
     result = ExportReport(
         path=None,
         family=model.family,
