@@ -6,10 +6,12 @@ from collections.abc import Callable
 
 from .afn import AFN, AFNConfig
 from .base import DenoiserModel
+from .wskp import WSKP, WSKPConfig
 
 # family -> (model class, config parser: dict | None -> config object with `to_dict()`)
 FAMILIES: dict[str, tuple[type[DenoiserModel], Callable[[dict | None], object]]] = {
     "afn": (AFN, AFNConfig.from_dict),
+    "wskp": (WSKP, WSKPConfig.from_dict),
 }
 
 

@@ -16,10 +16,15 @@ from typing import Any
 import onnx
 from onnx import TensorProto, helper
 
-from . import adaptive_fusion, kernel_apply
+from . import adaptive_fusion, kernel_apply, kernel_fusion, weight_sharing_filter
 from .base import DOMAIN, DOMAIN_VERSION, IR_VERSION, OPSET, OpSpec
 
-OPS: list[OpSpec] = [kernel_apply.SPEC, adaptive_fusion.SPEC]
+OPS: list[OpSpec] = [
+    kernel_apply.SPEC,
+    adaptive_fusion.SPEC,
+    weight_sharing_filter.SPEC,
+    kernel_fusion.SPEC,
+]
 SPECS: dict[str, OpSpec] = {s.name: s for s in OPS}
 
 __all__ = [
@@ -143,8 +148,8 @@ def single_op_model(
 
     input_shapes: one shape per op input, dims as ints or names (dynamic); attrs: the int
     attributes (all required). with_function=False leaves the FunctionProto out, so the model
-    only runs when the fast kernels are registered. output_shapes defaults to the first
-    input's shape for every output (true of KernelApply and AdaptiveFusion).
+    only runs when the fast kernels are registered. output_shapes defaults to the op's
+    `OpSpec.output_shape`, else to the first input's shape for every output.
     """
     spec = SPECS[op_name]
     attrs = dict(attrs or {})
@@ -152,6 +157,8 @@ def single_op_model(
         raise ValueError(f"{op_name} needs attributes {spec.int_attrs}, got {sorted(attrs)}")
     if len(input_shapes) != len(spec.inputs):
         raise ValueError(f"{op_name} has {len(spec.inputs)} inputs, got {len(input_shapes)} shapes")
+    if output_shapes is None and spec.output_shape is not None:
+        output_shapes = spec.output_shape([list(x) for x in input_shapes], attrs)
     out_shapes = output_shapes or [input_shapes[0]] * len(spec.outputs)
     node = helper.make_node(op_name, list(spec.inputs), list(spec.outputs), domain=DOMAIN, **attrs)
     graph = helper.make_graph(

@@ -33,7 +33,8 @@ class OpSpec:
     `torch.ops.rtdenoise` namespace (e.g. "kernel_apply"); int_attrs: the node's
     attribute names (all INT, all required); build_function(opset) returns the FunctionProto;
     example_inputs(shape, attrs, rng) gives float32 inputs for an (N, C, H, W) image shape
-    (tests, benchmarks); default_attrs are typical attribute values.
+    (tests, benchmarks); default_attrs are typical attribute values; output_shape(input_shapes,
+    attrs) gives the output shapes of a single-op model (None: every output like input 0).
     """
 
     name: str
@@ -46,6 +47,7 @@ class OpSpec:
     build_function: Callable[[int], onnx.FunctionProto]
     example_inputs: Callable[[tuple[int, ...], dict, np.random.Generator], list[np.ndarray]]
     default_attrs: dict[str, int] = field(default_factory=dict)
+    output_shape: Callable[[list, dict], list[list]] | None = None
 
     def torch_op(self):
         """The `torch.ops.rtdenoise.<torch_name>.default` overload (imports the torch forms)."""

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import adaptive_fusion, kernel_apply
+from . import adaptive_fusion, kernel_apply, kernel_fusion, weight_sharing_filter
 
 
 @dataclass(frozen=True)
@@ -35,6 +35,20 @@ KERNELS: dict[str, KernelDef] = {
         3,
         adaptive_fusion.INT_ATTRS,
         adaptive_fusion.warmup,
+    ),
+    weight_sharing_filter.NAME: KernelDef(
+        weight_sharing_filter.NAME,
+        weight_sharing_filter.weight_sharing_filter,
+        2,
+        weight_sharing_filter.INT_ATTRS,
+        weight_sharing_filter.warmup,
+    ),
+    kernel_fusion.NAME: KernelDef(
+        kernel_fusion.NAME,
+        kernel_fusion.kernel_fusion,
+        2,
+        kernel_fusion.INT_ATTRS,
+        kernel_fusion.warmup,
     ),
 }
 

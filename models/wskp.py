@@ -1,0 +1,221 @@
+"""WSKP: real-time Monte Carlo denoising with a weight sharing kernel prediction network (Fan21).
+
+`WSKP.forward` reads like Fan21's pipeline (1-spp BMFR configuration, supplement s.1.1):
+
+1. demodulate: irradiance r = color / (albedo + albedo_eps);
+2. temporal accumulation of r (Fan21 accumulates like BMFR / SVGF): `models.temporal`
+   reprojects the previous accumulation with the motion vectors, rejects it on depth /
+   normal disagreement or off-screen, and blends (same scheme and state as AFN);
+3. network input, 10 channels: (r_TA * (albedo + eps))^(1/2.2) (3), albedo (3),
+   normal (3, as (n + 1) / 2), depth (1, scaled to [0, 1] per frame like AFN);
+4. ImportanceNet: `layers` RepVGG blocks (5 x 5 + 3 x 3 + 1 x 1 branches, identity where
+   in == out), LeakyReLU 0.1 between blocks, no BN, no bias; the last block outputs
+   2 S channels (S = number of box sizes): S importance logits and S fusion logits;
+5. weight sharing kernels: importance w_i = exp(clamp(logit_i)); filtered_i =
+   boxsum_{s_i}(w_i r_TA) / boxsum_{s_i}(w_i) for box sizes s_i = 3, 5, ..., 13
+   (`ops.weight_sharing_filter`);
+6. kernel fusion: softmax over the S fusion logits per pixel, weighted sum of the S filtered
+   images (`ops.kernel_fusion`);
+7. remodulate: output = fused * (albedo + albedo_eps).
+
+At export every RepVGG block folds into one 5 x 5 conv (`models.repvgg`, Fan21 s.1.1), by
+the generic `export.deploy.to_deploy` pass.
+
+Choices the paper leaves open (all in `WSKPConfig`, stored in checkpoints):
+- albedo_eps = 1e-2 in demodulation and remodulation (as AFN; exactly invertible).
+- TA: `models.temporal.TemporalConfig` (relative depth tolerance 0.1, normal dot > 0.9,
+  min_alpha 0.2); state `ta` (r_TA and history length) and `geometry` (normal, depth).
+- The network sees the accumulated colour r_TA * (albedo + eps), gamma-compressed with
+  exponent 1 / `gamma` (2.2); the filter runs on HDR r_TA (no gamma).
+- Block layout: the first block maps 10 -> width (no identity), blocks 2 .. layers - 1 are
+  width -> width with identity, the last maps width -> 2 S (no identity) with no
+  activation after it. Width 14, 6 layers (Fan21 "Ours (6-layer)").
+- The activation sits outside the RepVGG block (the folded conv equals the branch sum).
+- `logit_clamp` = 20: importance logits are clamped to [-20, 20] before exp, so the weights
+  stay within exp(+-20) ~ 2e-9 .. 5e8: a weight sum is never 0 nor infinite in float32
+  (13 x 13 boxes of irradiance up to ~1e27), and the fast kernel (no running sums) stays
+  accurate over that range. Gradients stop where a logit is clamped.
+- `bn`, `bias`: off by default (Fan21); available for experiments and tests. With bn the
+  block uses batch statistics in training mode and running statistics in eval mode, which
+  is what the folded conv reproduces.
+- No pooling: `pad_multiple` = 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from . import ops
+from .base import DenoiserModel, StateSpec
+from .ops.weight_sharing_filter import sizes_to_attrs
+from .repvgg import RepVGGBlock
+from .temporal import TemporalConfig, temporal_accumulation
+
+INPUT_CHANNELS = 10  # (r_TA x albedo)^(1/2.2), albedo, normal, depth
+
+
+@dataclass(frozen=True)
+class WSKPConfig:
+    """Sizes and constants of the WSKP model (see the module docstring)."""
+
+    width: int = 14
+    layers: int = 6
+    kernel_sizes: tuple[int, ...] = (5, 3, 1)
+    sizes: tuple[int, ...] = (3, 5, 7, 9, 11, 13)
+    negative_slope: float = 0.1
+    bn: bool = False
+    bias: bool = False
+    gamma: float = 2.2
+    logit_clamp: float = 20.0
+    albedo_eps: float = 1e-2
+    depth_scale: str = "log"  # "log" or "linear"
+    depth_tolerance: float = 0.1
+    normal_threshold: float = 0.9
+    min_alpha: float = 0.2
+    max_history: float = 64.0
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> WSKPConfig:
+        """Defaults overridden by `data`; unknown keys raise ValueError naming them."""
+        data = dict(data or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown wskp config keys {unknown}; known: {sorted(known)}")
+        for key in ("kernel_sizes", "sizes"):
+            if key in data:
+                data[key] = tuple(int(v) for v in data[key])
+        config = cls(**data)
+        config.validate()
+        return config
+
+    def validate(self) -> None:
+        if self.width < 1:
+            raise ValueError(f"wskp width must be >= 1, got {self.width}")
+        if self.layers < 2:
+            raise ValueError(f"wskp layers must be >= 2, got {self.layers}")
+        if not self.kernel_sizes or any(k < 1 or k % 2 == 0 for k in self.kernel_sizes):
+            raise ValueError(f"wskp kernel_sizes must be odd and >= 1, got {self.kernel_sizes}")
+        sizes_to_attrs(self.sizes)  # odd, evenly spaced (ValueError otherwise)
+        if self.logit_clamp <= 0:
+            raise ValueError(f"wskp logit_clamp must be > 0, got {self.logit_clamp}")
+        if self.gamma <= 0:
+            raise ValueError(f"wskp gamma must be > 0, got {self.gamma}")
+        if self.depth_scale not in ("log", "linear"):
+            raise ValueError(
+                f"wskp depth_scale must be 'log' or 'linear', got {self.depth_scale!r}"
+            )
+
+    def to_dict(self) -> dict:
+        data = asdict(self)
+        data["kernel_sizes"] = list(self.kernel_sizes)
+        data["sizes"] = list(self.sizes)
+        return data
+
+    def temporal(self) -> TemporalConfig:
+        return TemporalConfig(
+            depth_tolerance=self.depth_tolerance,
+            normal_threshold=self.normal_threshold,
+            min_alpha=self.min_alpha,
+            max_history=self.max_history,
+        )
+
+
+class ImportanceNet(nn.Module):
+    """Fan21 ImportanceNet (1-spp configuration): RepVGG blocks, LeakyReLU between them."""
+
+    def __init__(self, in_channels: int, out_channels: int, config: WSKPConfig) -> None:
+        super().__init__()
+        widths = [in_channels] + [config.width] * (config.layers - 1) + [out_channels]
+        # identity only where in == out (Fan21 s.1.1), i.e. the width -> width blocks
+        self.blocks = nn.ModuleList(
+            RepVGGBlock(c_in, c_out, config.kernel_sizes, bn=config.bn, bias=config.bias)
+            for c_in, c_out in zip(widths[:-1], widths[1:], strict=True)
+        )
+        self.negative_slope = config.negative_slope
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for block in self.blocks[:-1]:
+            x = F.leaky_relu(block(x), self.negative_slope)
+        return self.blocks[-1](x)
+
+
+class WSKP(DenoiserModel):
+    """Fan21 weight sharing kernel prediction with temporal accumulation (module docstring)."""
+
+    family = "wskp"
+    inputs = ("color", "albedo", "normal", "depth", "motion")
+    state_specs = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))
+    pad_multiple = 1
+    input_note = (
+        "pass linear HDR radiance (color), albedo, normal in [-1, 1], linear view depth and "
+        "motion in pixels (previous = current + motion); do NOT demodulate, tonemap, "
+        "accumulate or normalise: the graph does it"
+    )
+
+    def __init__(self, config: WSKPConfig | dict | None = None) -> None:
+        super().__init__()
+        if not isinstance(config, WSKPConfig):
+            config = WSKPConfig.from_dict(config)
+        config.validate()
+        self.cfg = config
+        self._temporal = config.temporal()
+        self.importance_net = ImportanceNet(INPUT_CHANNELS, 2 * len(config.sizes), config)
+
+    def config(self) -> dict:
+        return self.cfg.to_dict()
+
+    def _depth01(self, depth: torch.Tensor) -> torch.Tensor:
+        """Depth scaled to [0, 1] per frame (as AFN)."""
+        if self.cfg.depth_scale == "log":
+            depth = torch.log1p(depth)
+        return depth / (depth.amax(dim=(1, 2, 3), keepdim=True) + 1e-6)
+
+    def forward(
+        self,
+        buffers: dict[str, torch.Tensor],
+        state: dict[str, torch.Tensor],
+        reset: torch.Tensor,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        color = torch.clamp(buffers["color"], min=0.0)
+        albedo = torch.clamp(buffers["albedo"], min=0.0)
+        normal = buffers["normal"]
+        depth = torch.clamp(buffers["depth"], min=0.0)
+        motion = buffers["motion"]
+
+        # 1. Demodulation.
+        modulation = albedo + self.cfg.albedo_eps
+        irradiance = color / modulation
+
+        # 2. Temporal accumulation of the demodulated irradiance.
+        r_ta, _, next_ta, next_geometry = temporal_accumulation(
+            irradiance, motion, depth, normal, state["ta"], state["geometry"], reset, self._temporal
+        )
+
+        # 3. Network input (10 ch): gamma-compressed accumulated colour and the features.
+        radiance = torch.pow(torch.clamp(r_ta * modulation, min=0.0), 1.0 / self.cfg.gamma)
+        features = (albedo, 0.5 * (normal + 1.0), self._depth01(depth))
+        net_in = torch.cat((radiance, *features), dim=1)
+
+        # 4. ImportanceNet: S importance logits and S fusion logits.
+        s = len(self.cfg.sizes)
+        logits = self.importance_net(net_in)
+        clamp = self.cfg.logit_clamp
+        importance = torch.exp(torch.clamp(logits[:, :s], -clamp, clamp))
+
+        # 5. Weight sharing kernels of sizes 3 .. 13 on the HDR accumulated irradiance.
+        filtered = ops.weight_sharing_filter(r_ta, importance, self.cfg.sizes)
+
+        # 6. Kernel fusion (softmax over the S sizes per pixel).
+        fused = ops.kernel_fusion(filtered, logits[:, s:])
+
+        # 7. Remodulation.
+        output = fused * modulation
+        return output, {"ta": next_ta, "geometry": next_geometry}
+
+
+__all__ = ["INPUT_CHANNELS", "WSKP", "ImportanceNet", "WSKPConfig"]
