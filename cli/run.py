@@ -37,9 +37,8 @@ from rtdenoise.runtime.sequence import (
     write_output,
 )
 
-# The model used when --model is not given. "none" until a demo model ships; the lead
-# switches it to e.g. "demo:afn" then.
-DEFAULT_MODEL = "none"
+# The model used when --model is not given: the shipped AFN demo (Lee24).
+DEFAULT_MODEL = "demo:afn"
 METRIC_KEYS = ("psnr", "ssim", "smape", "relmse")
 TABLE_MAX_FRAMES = 12  # per-frame rows up to this many frames, else only the mean
 MAX_WARNINGS = 10
@@ -380,12 +379,27 @@ def run(
             report = run_sequence(job, backend, lay, overrides, half=half, preview=preview, err=err)
             print_report(report, model, out)
             reports.append(report)
+        if len(reports) > 1:
+            print_overall(reports, model, out)
         if metrics_json is not None:
             if is_demo:
                 payload: dict[str, Any] = {"model": model, "sequences": reports}
             else:
                 payload = {"model": model, "layout": lay.name, **reports[0]}
             write_json(metrics_json, payload)
+
+
+def print_overall(reports: list[dict[str, Any]], model: str, console: Console) -> None:
+    """One line over several sequences: mean PSNR of the output and of the noisy input."""
+    scored = [r for r in reports if r.get("mean") and r.get("input")]
+    if not scored:
+        return
+    out_psnr = float(np.mean([r["mean"]["psnr"] for r in scored]))
+    in_psnr = float(np.mean([r["input"]["psnr"] for r in scored]))
+    console.print(
+        f"[bold]{model}[/bold] over {len(scored)} sequences: mean PSNR {out_psnr:.2f} dB "
+        f"(noisy input {in_psnr:.2f} dB, {out_psnr - in_psnr:+.2f} dB)"
+    )
 
 
 def main() -> None:

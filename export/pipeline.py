@@ -53,7 +53,7 @@ def validation_frames(
         if fh < h or fw < w:
             continue
         cropped = [{k: np.ascontiguousarray(f[k][:, :h, :w]) for k in model.inputs} for f in frames]
-        return cropped, str(seq)
+        return cropped, f"bundled sequence {seq.name}"
     return synthetic_frames(model.inputs, n, h, w), "synthetic"
 
 

@@ -9,12 +9,12 @@ Writes are atomic (temp file in the same folder, then rename).
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from rtdenoise.runtime.atomic import atomic_path
 from rtdenoise.runtime.errors import InputError
 
 from .base import DenoiserModel
@@ -46,16 +46,8 @@ def save_checkpoint(
     }
     if train is not None:
         ckpt["train"] = train
-    folder = path.parent
-    folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(ckpt, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

@@ -47,11 +47,15 @@ def temp_files(folder):
 
 
 def invoke(*args):
-    return runner.invoke(app, [str(a) for a in args])
+    """Run denoise-run; pass-through (`--model none`) unless the test names a model."""
+    argv = [str(a) for a in args]
+    if not {"--model", "-m", "--help"} & set(argv):
+        argv += ["--model", "none"]
+    return runner.invoke(app, argv)
 
 
-def test_default_model_is_passthrough_and_help():
-    assert DEFAULT_MODEL == "none"
+def test_default_model_is_the_shipped_demo_and_help():
+    assert DEFAULT_MODEL == "demo:afn"
     res = invoke("--help")
     assert res.exit_code == 0 and "blender" in res.stdout and "canonical" in res.stdout
 
@@ -272,7 +276,7 @@ def test_console_script_prints_exactly_one_line(tmp_path):
     expected = _break_truncated(seq)
     code = "from rtdenoise.cli.run import main; main()"
     proc = subprocess.run(
-        [sys.executable, "-c", code, str(seq), "-o", str(out)],
+        [sys.executable, "-c", code, str(seq), "-o", str(out), "--model", "none"],
         capture_output=True,
         text=True,
         timeout=120,

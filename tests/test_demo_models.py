@@ -1,0 +1,93 @@
+"""The shipped demo models: ONNX == checkpoint, quality on the committed sequences, reset.
+
+Quality margins are the issues' acceptance numbers: the demo model's mean PSNR (pooled per
+sequence, Isik21 eq. 14, averaged over the committed sequences) must beat the noisy 1-spp input
+by the stated dB.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rtdenoise.runtime.denoiser import Denoiser
+from rtdenoise.runtime.metrics import SequenceMetrics
+from rtdenoise.runtime.sequence import find_frames, match_references, read_frame, read_reference
+from rtdenoise.shipped import MODELS_DIR, sample_sequences
+
+# family -> minimum PSNR gain over the noisy input, dB
+MIN_GAIN_DB = {"afn": 6.0, "wskp": 4.0}
+FAMILIES = sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) if MODELS_DIR.is_dir() else []
+
+
+def load_sequence(folder):
+    frames = find_frames(folder)
+    refs = match_references(frames)
+    return [read_frame(p).buffers for p in frames], [read_reference(r) for r in refs]
+
+
+@pytest.fixture(scope="module")
+def sequences():
+    seqs = sample_sequences()
+    assert len(seqs) >= 3, "the committed test sequences are missing"
+    return [load_sequence(s) for s in seqs]
+
+
+def test_every_family_with_a_gain_threshold_ships_a_demo():
+    assert "afn" in FAMILIES
+    assert set(FAMILIES) <= set(MIN_GAIN_DB)
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_demo_beats_noisy_input(family, sequences):
+    gains = []
+    for frames, refs in sequences:
+        out_metrics, in_metrics = SequenceMetrics(), SequenceMetrics()
+        denoiser = Denoiser(f"demo:{family}")
+        for frame, ref in zip(frames, refs, strict=True):
+            out = denoiser.process(frame)
+            assert np.isfinite(out).all()
+            out_metrics.add(out, ref)
+            in_metrics.add(frame["color"], ref)
+        gains.append(out_metrics.summary()["psnr"] - in_metrics.summary()["psnr"])
+    assert np.mean(gains) >= MIN_GAIN_DB[family], gains
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_demo_onnx_matches_its_checkpoint_over_eight_frames(family, sequences):
+    torch = pytest.importorskip("torch")  # noqa: F841  (the comparison needs the PyTorch model)
+    from rtdenoise.export.validate import validate
+    from rtdenoise.models.checkpoint import load_checkpoint
+
+    model, _ = load_checkpoint(MODELS_DIR / f"{family}.pt")
+    frames = sequences[0][0][:8]
+    report = validate(model, (MODELS_DIR / f"{family}.onnx").read_bytes(), frames, tolerance=1e-4)
+    assert report.passed, report.errors
+    assert all(len(errors) == 8 for errors in report.errors.values())
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_reset_and_resolution_change_restart_history(family, sequences):
+    frames = sequences[0][0]
+    denoiser = Denoiser(f"demo:{family}")
+    first = denoiser.process(frames[0])
+    second = denoiser.process(frames[1])
+    assert not np.allclose(second, Denoiser(f"demo:{family}").process(frames[1]))  # history used
+    denoiser.reset()
+    np.testing.assert_array_equal(denoiser.process(frames[0]), first)
+    cropped = {k: np.ascontiguousarray(v[:, :40, :52]) for k, v in frames[0].items()}
+    fresh = Denoiser(f"demo:{family}").process(cropped)
+    denoiser.process(frames[1])
+    np.testing.assert_array_equal(denoiser.process(cropped), fresh)  # new size: history dropped
+
+
+def test_denoise_run_demo_uses_the_shipped_model(tmp_path):
+    from typer.testing import CliRunner
+
+    from rtdenoise.cli.run import app
+
+    res = CliRunner().invoke(app, ["--demo", "-o", str(tmp_path)])
+    assert res.exit_code == 0, res.output
+    assert "demo:afn over 3 sequences" in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq_000", "seq_001", "seq_002"]
+    assert len(list((tmp_path / "seq_000").glob("frame_*.exr"))) == 8
