@@ -32,8 +32,8 @@ def _parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
-@app.command()
-def bench(
+@app.command("model")
+def bench_model(
     model: Annotated[
         str,
         typer.Argument(help="Checkpoint (.pt), demo:<family>, or a family name (random weights)."),
@@ -97,6 +97,47 @@ def bench(
             "stages": result.stages,
         }
         json_path.write_text(json.dumps(payload, indent=2))
+
+
+@app.command("op")
+def bench_one_op(
+    op: Annotated[str, typer.Argument(help="Custom op name, e.g. KernelApply.")],
+    size: Annotated[str, typer.Option(help="Image size WIDTHxHEIGHT.")] = "1280x720",
+    channels: Annotated[int, typer.Option(help="Image channels.")] = 3,
+    attr: Annotated[
+        list[str] | None,
+        typer.Option("--attr", help="Op attribute NAME=INT (repeatable); default: the op's own."),
+    ] = None,
+    repeats: Annotated[int, typer.Option(help="Timed calls (after one warm-up call).")] = 5,
+    threads: Annotated[int, typer.Option(help="Threads for ORT and PyTorch (0: default).")] = 0,
+) -> None:
+    """Time one filter stage in its forms: numba kernel called directly, ORT with the fast
+    kernel, ORT running the portable function body, PyTorch eager. Medians, one run.
+    E.g. `denoise-bench op WeightSharingFilter --attr size_min=13 --attr count=1`."""
+    with user_errors():
+        from rtdenoise.export.ops import SPECS
+        from rtdenoise.export.ops.bench import bench_op
+
+        if op not in SPECS:
+            fail(f"unknown op {op!r}; known: {sorted(SPECS)}")
+        attrs = dict(SPECS[op].default_attrs)
+        for item in attr or []:
+            name, sep, value = item.partition("=")
+            if not sep or name not in attrs or not value.lstrip("-").isdigit():
+                fail(f"--attr {item!r}: expected NAME=INT with NAME in {sorted(attrs)}")
+            attrs[name] = int(value)
+        h, w = _parse_size(size)
+        with console.status(f"benchmarking {op}"):
+            result = bench_op(
+                op, (1, channels, h, w), repeats=repeats, attrs=attrs, threads=threads
+            )
+    table = Table(title=f"{op} {attrs} on 1x{channels}x{h}x{w}, median ms per call")
+    for form in result["ms"]:
+        table.add_column(LABELS.get(form, form), justify="right")
+    table.add_row(*(f"{ms:.1f}" for ms in result["ms"].values()))
+    console.print(table)
+    worst = max(result["max_abs_diff"].values())
+    console.print(f"largest difference from PyTorch: {worst:.2e}")
 
 
 def main() -> None:
