@@ -280,6 +280,8 @@ def train(
             if step % max(1, s.log_every) == 0 or step == s.steps:
                 history.append([step, float(np.mean(window))])
                 window = []
+                if not progress:  # no bar (logs, CI): a line per logging window instead
+                    log(f"step {step}/{s.steps}: loss {history[-1][1]:.4f}")
             if s.save_every and step % s.save_every == 0 and step < s.steps:
                 checkpoint()
     seconds = (time.perf_counter() - t0) / max(1, step - start_step)
