@@ -49,6 +49,7 @@ from torch import nn
 
 from . import ops
 from .base import DenoiserModel, StateSpec
+from .features import depth01, frame_inputs
 from .temporal import TemporalConfig, temporal_accumulation
 
 
@@ -204,23 +205,13 @@ class AFN(DenoiserModel):
     def config(self) -> dict:
         return self.cfg.to_dict()
 
-    def _depth01(self, depth: torch.Tensor) -> torch.Tensor:
-        """Depth scaled to [0, 1] per frame (Lee24 III-A)."""
-        if self.cfg.depth_scale == "log":
-            depth = torch.log1p(depth)
-        return depth / (depth.amax(dim=(1, 2, 3), keepdim=True) + 1e-6)
-
     def forward(
         self,
         buffers: dict[str, torch.Tensor],
         state: dict[str, torch.Tensor],
         reset: torch.Tensor,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        color = torch.clamp(buffers["color"], min=0.0)
-        albedo = torch.clamp(buffers["albedo"], min=0.0)
-        normal = buffers["normal"]
-        depth = torch.clamp(buffers["depth"], min=0.0)
-        motion = buffers["motion"]
+        color, albedo, normal, depth, motion = frame_inputs(buffers)
 
         # 1. Demodulation (Lee24 III-A, after Chaitanya17).
         modulation = albedo + self.cfg.albedo_eps
@@ -232,7 +223,8 @@ class AFN(DenoiserModel):
         )
 
         # 3. Network input: tonemapped radiance, features scaled to [0, 1] (Lee24 III-A).
-        features = torch.cat((albedo, 0.5 * (normal + 1.0), self._depth01(depth)), dim=1)
+        depth_01 = depth01(depth, self.cfg.depth_scale)
+        features = torch.cat((albedo, 0.5 * (normal + 1.0), depth_01), dim=1)
         net_in = [torch.log1p(r_1spp), torch.log1p(r_ta), features]
         if self.cfg.history_input:
             net_in.append(blend)

@@ -13,15 +13,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-# Canonical buffers and their channel counts (design.md s.3).
-BUFFER_CHANNELS: dict[str, int] = {
-    "color": 3,
-    "color_b": 3,
-    "albedo": 3,
-    "normal": 3,
-    "depth": 1,
-    "motion": 2,
-}
+from rtdenoise.runtime.buffers import BUFFER_CHANNELS  # noqa: F401  (re-exported)
 
 
 @dataclass(frozen=True)

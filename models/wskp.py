@@ -51,6 +51,7 @@ from torch import nn
 
 from . import ops
 from .base import DenoiserModel, StateSpec
+from .features import depth01, frame_inputs
 from .ops.weight_sharing_filter import sizes_to_attrs
 from .repvgg import RepVGGBlock
 from .temporal import TemporalConfig, temporal_accumulation
@@ -169,23 +170,13 @@ class WSKP(DenoiserModel):
     def config(self) -> dict:
         return self.cfg.to_dict()
 
-    def _depth01(self, depth: torch.Tensor) -> torch.Tensor:
-        """Depth scaled to [0, 1] per frame (as AFN)."""
-        if self.cfg.depth_scale == "log":
-            depth = torch.log1p(depth)
-        return depth / (depth.amax(dim=(1, 2, 3), keepdim=True) + 1e-6)
-
     def forward(
         self,
         buffers: dict[str, torch.Tensor],
         state: dict[str, torch.Tensor],
         reset: torch.Tensor,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        color = torch.clamp(buffers["color"], min=0.0)
-        albedo = torch.clamp(buffers["albedo"], min=0.0)
-        normal = buffers["normal"]
-        depth = torch.clamp(buffers["depth"], min=0.0)
-        motion = buffers["motion"]
+        color, albedo, normal, depth, motion = frame_inputs(buffers)
 
         # 1. Demodulation.
         modulation = albedo + self.cfg.albedo_eps
@@ -198,7 +189,7 @@ class WSKP(DenoiserModel):
 
         # 3. Network input (10 ch): gamma-compressed accumulated colour and the features.
         radiance = torch.pow(torch.clamp(r_ta * modulation, min=0.0), 1.0 / self.cfg.gamma)
-        features = (albedo, 0.5 * (normal + 1.0), self._depth01(depth))
+        features = (albedo, 0.5 * (normal + 1.0), depth01(depth, self.cfg.depth_scale))
         net_in = torch.cat((radiance, *features), dim=1)
 
         # 4. ImportanceNet: S importance logits and S fusion logits.

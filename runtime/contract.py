@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from .buffers import BUFFER_CHANNELS as CANONICAL_CHANNELS
 from .errors import InputError
 
 CONTRACT_VERSION = 1
@@ -34,17 +35,9 @@ STATE_IN = "state."
 STATE_OUT = "state_next."
 FLOAT = "tensor(float)"
 
-# Canonical buffers -> channel count (design.md s.3; mirrors models.base.BUFFER_CHANNELS, which
-# imports torch). `samples` is per-sample data, [1, S, C, H, W] with S and C model-defined.
-BUFFER_CHANNELS: dict[str, int | None] = {
-    "color": 3,
-    "color_b": 3,
-    "albedo": 3,
-    "normal": 3,
-    "depth": 1,
-    "motion": 2,
-    "samples": None,
-}
+# Canonical buffers -> channel count; `samples` is per-sample data, [1, S, C, H, W] with S and C
+# model-defined.
+BUFFER_CHANNELS: dict[str, int | None] = {**CANONICAL_CHANNELS, "samples": None}
 BUFFER_RANK: dict[str, int] = {name: 4 for name in BUFFER_CHANNELS} | {"samples": 5}
 
 Dim = int | str | None

@@ -34,18 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .buffers import BUFFER_CHANNELS
 from .errors import InputError
-
-# Canonical buffers and their channel counts: a copy of models/base.py BUFFER_CHANNELS,
-# kept here because runtime/ must not import models/ (torch). A test keeps them equal.
-BUFFER_CHANNELS: dict[str, int] = {
-    "color": 3,
-    "color_b": 3,
-    "albedo": 3,
-    "normal": 3,
-    "depth": 1,
-    "motion": 2,
-}
 
 COMPONENT_SETS: dict[int, tuple[tuple[str, ...], ...]] = {
     3: (("R", "G", "B"), ("X", "Y", "Z")),
