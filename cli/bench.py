@@ -10,6 +10,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from rtdenoise.runtime.memory import tune_allocator
+
 from .common import fail, passive_openmp_threads, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
@@ -142,6 +144,7 @@ def bench_one_op(
 
 def main() -> None:
     passive_openmp_threads()
+    tune_allocator()  # as denoise-run does: measure what it runs
     app()
 
 

@@ -24,6 +24,7 @@ from rtdenoise.cli.common import quiet_native_output, user_errors, warn, write_j
 from rtdenoise.runtime.backend import Backend, load_backend
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
+from rtdenoise.runtime.memory import tune_allocator
 from rtdenoise.runtime.metrics import SequenceMetrics
 from rtdenoise.runtime.preview import write_png
 from rtdenoise.runtime.sequence import (
@@ -404,6 +405,9 @@ def print_overall(reports: list[dict[str, Any]], model: str, console: Console) -
 
 def main() -> None:
     """Console script entry point."""
+    # A program denoising frame after frame: reuse large blocks instead of fresh mmaps that
+    # page-fault on every frame (process-wide, so the CLI decides it, not the library).
+    tune_allocator()
     app()
 
 

@@ -50,6 +50,7 @@ from torch import nn
 from . import ops
 from .base import DenoiserModel, StateSpec
 from .features import depth01, frame_inputs
+from .functional import channel_softmax
 from .temporal import TemporalConfig, temporal_accumulation
 
 
@@ -149,9 +150,9 @@ class KernelPredictor(nn.Module):
             x = self.decoders[level](torch.cat((up, skips[level]), dim=1))
             features.append(x)
         half, full = features[-2], features[-1]
-        k_1spp = torch.softmax(self.head_1spp(half), dim=1)
+        k_1spp = channel_softmax(self.head_1spp(half))
         head = self.head_ta(full)
-        k_ta = torch.softmax(head[:, : self.taps], dim=1)
+        k_ta = channel_softmax(head[:, : self.taps])
         alpha = torch.sigmoid(head[:, self.taps :])
         return k_1spp, k_ta, alpha
 
