@@ -161,7 +161,9 @@ def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
     proto = export_model(model)
     custom = [n.op_type for n in proto.graph.node if n.domain == "rtdenoise"]
     assert sorted(custom) == ["AdaptiveFusion", "KernelApply", "KernelApply"]
-    assert {"GridSample", "Conv", "Softmax"} <= {n.op_type for n in proto.graph.node}
+    ops_used = {n.op_type for n in proto.graph.node}
+    assert {"GridSample", "Conv", "ReduceMax", "Exp"} <= ops_used
+    assert "Softmax" not in ops_used  # spelled out: ORT's Softmax(axis=1) is slow on CPU
     meta = {p.key: p.value for p in proto.metadata_props}
     assert meta["rtdenoise.family"] == "afn" and meta["rtdenoise.pad_multiple"] == "4"
     data = proto.SerializeToString()
