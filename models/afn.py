@@ -203,9 +203,6 @@ class AFN(DenoiserModel):
         self.predictor = KernelPredictor(in_channels, config.widths, config.kernel_size)
         self.refine = Refinement(7 + 3, config.refine_width, config.refine_layers)
 
-    def config(self) -> dict:
-        return self.cfg.to_dict()
-
     def forward(
         self,
         buffers: dict[str, torch.Tensor],

@@ -59,5 +59,7 @@ class DenoiserModel(nn.Module):
         }
 
     def config(self) -> dict:
-        """The JSON-able constructor arguments (stored in checkpoints and ONNX metadata)."""
-        raise NotImplementedError
+        """The JSON-able constructor arguments (stored in checkpoints and ONNX metadata).
+
+        Families keep their config dataclass in `self.cfg` (with `to_dict()`)."""
+        return self.cfg.to_dict()

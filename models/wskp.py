@@ -167,9 +167,6 @@ class WSKP(DenoiserModel):
         self._temporal = config.temporal()
         self.importance_net = ImportanceNet(INPUT_CHANNELS, 2 * len(config.sizes), config)
 
-    def config(self) -> dict:
-        return self.cfg.to_dict()
-
     def forward(
         self,
         buffers: dict[str, torch.Tensor],

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 
 def as_f32c(a: np.ndarray, name: str) -> np.ndarray:
@@ -13,3 +14,10 @@ def as_f32c(a: np.ndarray, name: str) -> np.ndarray:
     if a.ndim != 4:
         raise ValueError(f"{name} must be 4-D (N, C, H, W), got shape {a.shape}")
     return a
+
+
+@njit(cache=True, fastmath=True)
+def add_into(dst, a):
+    """dst += a, element-wise over a contiguous float32 row (vectorises)."""
+    for x in range(dst.shape[0]):
+        dst[x] += a[x]

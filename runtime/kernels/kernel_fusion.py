@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import as_f32c
+from ._common import add_into, as_f32c
 
 NAME = "KernelFusion"
 INT_ATTRS: tuple[str, ...] = ()
@@ -58,12 +58,6 @@ def _max_acc(dst, a):
 
 
 @njit(cache=True, fastmath=True)
-def _acc(dst, a):
-    for x in range(dst.shape[0]):
-        dst[x] += a[x]
-
-
-@njit(cache=True, fastmath=True)
 def _inverse(dst, a):
     for x in range(dst.shape[0]):
         dst[x] = np.float32(1.0) / a[x]
@@ -106,7 +100,7 @@ def _kernel_fusion_nb(images, logits, out):
             _times_pow2(prob[i], bits)
         total[:] = prob[0]
         for i in range(1, n_s):
-            _acc(total, prob[i])
+            add_into(total, prob[i])
         _inverse(top, total)  # total >= 1 (the largest term is exp(0))
         for i in range(n_s):
             _scale(prob[i], top)

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import as_f32c
+from ._common import add_into, as_f32c
 
 NAME = "WeightSharingFilter"
 INT_ATTRS = ("size_min", "size_step", "count")
@@ -53,13 +53,6 @@ def _add(dst, a, b):
     """dst = a + b (three distinct rows: in-place forms fail LLVM's alias check, unvectorised)."""
     for x in range(dst.shape[0]):
         dst[x] = a[x] + b[x]
-
-
-@njit(cache=True, fastmath=True)
-def _acc(dst, a):
-    """dst += a."""
-    for x in range(dst.shape[0]):
-        dst[x] += a[x]
 
 
 @njit(cache=True, fastmath=True)
@@ -120,10 +113,10 @@ def _horizontal(cur, vpre, s, r, q, qt, suf):
     for j in range(s - 2, -1, -1):  # suffix sums within each block
         _add(suf[j], suf[j + 1], qt[j])
     for j in range(1, s - 1):  # prefix sums within each block, in place
-        _acc(qt[j], qt[j - 1])
+        add_into(qt[j], qt[j - 1])
     # window at x = b*s + j: suffix of block b from j + prefix of block b + 1 up to j - 1
     for j in range(1, s):
-        _acc(suf[j, : m - 1], qt[j - 1, 1:])
+        add_into(suf[j, : m - 1], qt[j - 1, 1:])
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -151,7 +144,7 @@ def _wsf_nb(image, weights, out, sizes, task_n, task_i, task_b0, task_b1):
             for p in range(planes):
                 _source_rows(image, weights, n, i, p, (b + 1) * s - r, nxt[p])
                 for t in range(s - 2, -1, -1):
-                    _acc(cur[p, t], cur[p, t + 1])
+                    add_into(cur[p, t], cur[p, t + 1])
                 vpre[p, 0, :] = nxt[p, 0, :]
                 for t in range(1, s - 1):
                     _add(vpre[p, t], vpre[p, t - 1], nxt[p, t])
