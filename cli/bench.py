@@ -117,8 +117,8 @@ def bench_one_op(
     kernel, ORT running the portable function body, PyTorch eager. Medians, one run.
     E.g. `denoise-bench op WeightSharingFilter --attr size_min=13 --attr count=1`."""
     with user_errors():
-        from rtdenoise.export.ops import SPECS
-        from rtdenoise.export.ops.bench import bench_op
+        from rtdenoise.export.op_bench import bench_op
+        from rtdenoise.ops import SPECS
 
         if op not in SPECS:
             fail(f"unknown op {op!r}; known: {sorted(SPECS)}")

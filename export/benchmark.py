@@ -4,9 +4,10 @@ Measured in one run, side by side, on the same frames (medians over `repeats` fr
 a warm-up frame, state fed back as in production):
 - whole model: PyTorch eager (training form), PyTorch eager (deployed form), ORT with the
   fast kernels, ORT portable (function bodies inlined);
-- per stage: every filter-stage call the model makes (found by recording the calls of
-  `rtdenoise.models.ops` during one forward), timed inside the real PyTorch forward and as
-  single-op ONNX models on ORT (fast and portable) and as the bare numba kernel;
+- per stage: every filter-stage call the model makes (recorded with
+  `rtdenoise.models.ops.observe_calls`: op, shapes, attributes, the very input tensors), timed
+  inside the real PyTorch forward and, on those same inputs, as single-op ONNX models on ORT
+  (fast and portable) and as the bare numba kernel;
   "network and glue" = whole model minus the stages.
 """
 
@@ -20,13 +21,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from rtdenoise.models import ops as torch_ops
 from rtdenoise.models.base import DenoiserModel
+from rtdenoise.models.frame_loop import FrameLoop
+from rtdenoise.models.ops import TorchOp, observe_calls
 from rtdenoise.runtime.denoiser import Denoiser
 
 from .deploy import to_deploy
 from .onnx_export import export_model
-from .ops.bench import bench_op
+from .op_bench import bench_op
 from .validate import synthetic_frames
 
 PATHS = ("torch", "torch_deployed", "ort_fast", "ort_portable")
@@ -34,9 +36,12 @@ PATHS = ("torch", "torch_deployed", "ort_fast", "ort_portable")
 
 @dataclass
 class StageCall:
+    """The calls of one op with one input shape and attribute set during a frame."""
+
     op: str
     shape: tuple[int, ...]
     attrs: dict[str, int]
+    inputs: list[np.ndarray]  # the tensors of the first such call (benchmarked as is)
     torch_ms: list[float] = field(default_factory=list)
 
 
@@ -54,47 +59,27 @@ def _median(values: list[float]) -> float:
 
 @contextmanager
 def _record_stages(calls: dict[tuple, StageCall]):
-    """Wrap every public op function of rtdenoise.models.ops to record shapes and time."""
-    originals = {}
-    for op_name, (public, _custom, _ref) in torch_ops.OPS.items():
-        attr = public.__name__
-        originals[attr] = getattr(torch_ops, attr)
+    """Record every filter-stage call (op, shapes, attributes, time) inside this block."""
 
-        def timed(*args, _op=op_name, _fn=public, **kwargs):
-            t0 = time.perf_counter()
-            out = _fn(*args, **kwargs)
-            dt = (time.perf_counter() - t0) * 1000.0
-            attrs = _stage_attrs(_op, args, kwargs)
-            key = (_op, tuple(args[0].shape), tuple(sorted(attrs.items())))
-            match = calls.setdefault(key, StageCall(_op, tuple(args[0].shape), attrs))
-            match.torch_ms.append(dt)
-            return out
+    def record(op: TorchOp, inputs: tuple, attrs: dict[str, int], ms: float) -> None:
+        shapes = tuple(tuple(x.shape) for x in inputs)
+        key = (op.name, shapes, tuple(sorted(attrs.items())))
+        if key not in calls:
+            arrays = [x.detach().numpy().copy() for x in inputs]
+            calls[key] = StageCall(op.name, shapes[0], dict(attrs), arrays)
+        calls[key].torch_ms.append(ms)
 
-        setattr(torch_ops, attr, timed)
-    try:
+    with observe_calls(record):
         yield
-    finally:
-        for attr, fn in originals.items():
-            setattr(torch_ops, attr, fn)
-
-
-def _stage_attrs(op: str, args: tuple, kwargs: dict) -> dict[str, int]:
-    if op == "KernelApply":
-        k = int(round(args[1].shape[1] ** 0.5))
-        dilation = int(kwargs.get("dilation", args[2] if len(args) > 2 else 1))
-        return {"kernel_size": k, "dilation": dilation}
-    return {}
 
 
 def _time_torch(model: DenoiserModel, frames: list[dict[str, np.ndarray]]) -> list[float]:
-    h, w = frames[0]["color"].shape[-2:]
-    state = model.initial_state(1, h, w)
+    loop = FrameLoop(model)
     times = []
     with torch.no_grad():
-        for i, frame in enumerate(frames):
-            buffers = {k: torch.from_numpy(frame[k])[None] for k in model.inputs}
+        for frame in frames:
             t0 = time.perf_counter()
-            _, state = model(buffers, state, torch.tensor(1.0 if i == 0 else 0.0))
+            loop(frame)
             times.append((time.perf_counter() - t0) * 1000.0)
     return times[1:]  # frame 0 is the warm-up
 
@@ -142,7 +127,12 @@ def benchmark_model(
     for call in calls.values():
         say(f"stage {call.op} {call.shape}")
         forms = bench_op(
-            call.op, call.shape, repeats=repeats, attrs=call.attrs or None, threads=threads or 0
+            call.op,
+            call.shape,
+            repeats=repeats,
+            attrs=call.attrs,
+            threads=threads or 0,
+            inputs=call.inputs,
         )["ms"]
         stages.append(
             {

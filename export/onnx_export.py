@@ -1,17 +1,18 @@
-"""torch -> ONNX under the contract v1 (design.md s.3, s.5).
+"""torch -> ONNX: `to_onnx` for any module, `export_model` for a denoiser under the contract.
 
-The model (training form) is folded to deploy form, wrapped so that its dict
-interface becomes the contract's positional inputs/outputs, exported with the
-dynamo exporter (filter stages become `rtdenoise` custom nodes through the
-custom translation table), given the model-local function bodies, the pinned
-IR/opset versions and the contract metadata, and checked.
+`to_onnx` is the one torch -> ONNX step: the dynamo exporter with the custom translation
+table (filter stages become `rtdenoise` custom nodes), the model-local function bodies
+attached, the pinned IR/opset versions. `export_model` folds a denoiser to deploy form, wraps
+its dict interface into the contract's positional inputs/outputs (names from its
+`Declaration`, rtdenoise.runtime.contract), exports it with `to_onnx`, writes the contract
+metadata and runs the full checker (docs/contract.md).
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import warnings
+from typing import Any
 
 import onnx
 import torch
@@ -19,13 +20,36 @@ from torch import nn
 from torch.export import Dim
 
 from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
+from rtdenoise.models.ops import exporting
+from rtdenoise.runtime.contract import Declaration
 
 from . import ops as onnx_ops
 from .deploy import to_deploy
+from .ops import IR_VERSION, OPSET
 
-CONTRACT_VERSION = "1"
-IR_VERSION = 10
-OPSET = 18
+
+def to_onnx(
+    module: nn.Module, args: tuple, dynamic_shapes: Any = None, **kwargs: Any
+) -> onnx.ModelProto:
+    """Export `module(*args)` with the rtdenoise custom nodes and their function bodies.
+
+    Extra keyword arguments go to torch.onnx.export (e.g. input_names, output_names).
+    """
+    options = {
+        "dynamo": True,
+        "opset_version": OPSET,
+        "custom_translation_table": onnx_ops.custom_translation_table(),
+        "optimize": True,
+        "verbose": False,
+    } | kwargs
+    # The exporter's chatter (torchvision absent, axis renames, deprecations) is not the user's.
+    logging.getLogger("torch.onnx").setLevel(logging.ERROR)
+    with torch.no_grad(), exporting(), warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        program = torch.onnx.export(module, args, dynamic_shapes=dynamic_shapes, **options)
+    proto = onnx_ops.attach_functions(program.model_proto)
+    proto.ir_version = IR_VERSION
+    return proto
 
 
 class ContractModule(nn.Module):
@@ -34,22 +58,16 @@ class ContractModule(nn.Module):
     def __init__(self, model: DenoiserModel) -> None:
         super().__init__()
         self.model = model
-        self.buffer_names = tuple(model.inputs)
-        self.state_names = tuple(s.name for s in model.state_specs)
+        self.declared: Declaration = model.declaration()
+        self.state_names = tuple(s.name for s in self.declared.state)
 
     def forward(self, *args: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        nb = len(self.buffer_names)
-        buffers = dict(zip(self.buffer_names, args[:nb], strict=True))
+        nb = len(self.declared.buffers)
+        buffers = dict(zip(self.declared.buffers, args[:nb], strict=True))
         reset = args[nb]
         state = dict(zip(self.state_names, args[nb + 1 :], strict=True))
         output, next_state = self.model(buffers, state, reset)
         return (output, *(next_state[name] for name in self.state_names))
-
-    def input_names(self) -> list[str]:
-        return [*self.buffer_names, "reset", *(f"state.{n}" for n in self.state_names)]
-
-    def output_names(self) -> list[str]:
-        return ["output", *(f"state_next.{n}" for n in self.state_names)]
 
 
 def example_size(pad_multiple: int) -> tuple[int, int]:
@@ -89,44 +107,15 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     deployed = to_deploy(model)
     wrapper = ContractModule(deployed).eval()
     h, w = example_size(deployed.pad_multiple)
-    args = example_inputs(deployed, h, w)
-    # The exporter's chatter (torchvision absent, axis renames, deprecations) is not the user's.
-    logging.getLogger("torch.onnx").setLevel(logging.ERROR)
-    with torch.no_grad(), onnx_ops.exporting(), warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        program = torch.onnx.export(
-            wrapper,
-            args,
-            dynamo=True,
-            opset_version=OPSET,
-            input_names=wrapper.input_names(),
-            output_names=wrapper.output_names(),
-            dynamic_shapes=(_dynamic_shapes(deployed),),  # one entry: the *args tuple
-            custom_translation_table=onnx_ops.custom_translation_table(),
-            optimize=True,
-            verbose=False,
-        )
-    proto = program.model_proto
-    onnx_ops.attach_functions(proto)
-    proto.ir_version = IR_VERSION
-    _set_metadata(proto, deployed)
+    proto = to_onnx(
+        wrapper,
+        example_inputs(deployed, h, w),
+        dynamic_shapes=(_dynamic_shapes(deployed),),  # one entry: the *args tuple
+        input_names=wrapper.declared.input_names(),
+        output_names=wrapper.declared.output_names(),
+    )
+    del proto.metadata_props[:]
+    for key, value in wrapper.declared.metadata().items():
+        proto.metadata_props.add(key=key, value=value)
     onnx.checker.check_model(proto, full_check=True)
     return proto
-
-
-def _set_metadata(proto: onnx.ModelProto, model: DenoiserModel) -> None:
-    meta = {
-        "rtdenoise.contract": CONTRACT_VERSION,
-        "rtdenoise.family": model.family,
-        "rtdenoise.config": json.dumps(model.config(), sort_keys=True),
-        "rtdenoise.inputs": json.dumps(
-            {"buffers": list(model.inputs), "note": getattr(model, "input_note", "")}
-        ),
-        "rtdenoise.state": json.dumps(
-            [{"name": s.name, "channels": s.channels, "scale": s.scale} for s in model.state_specs]
-        ),
-        "rtdenoise.pad_multiple": str(model.pad_multiple),
-    }
-    del proto.metadata_props[:]
-    for key, value in meta.items():
-        proto.metadata_props.add(key=key, value=value)

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
+from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.runtime.denoiser import Denoiser
 
 
@@ -41,18 +42,8 @@ def torch_outputs(
     model: DenoiserModel, frames: Sequence[dict[str, np.ndarray]]
 ) -> list[np.ndarray]:
     """Run the PyTorch model over frames (C,H,W arrays) with state fed back; outputs (3,H,W)."""
-    outputs = []
-    state = None
     with torch.no_grad():
-        for i, frame in enumerate(frames):
-            buffers = {k: torch.from_numpy(frame[k])[None] for k in model.inputs}
-            h, w = buffers[model.inputs[0]].shape[-2:]
-            if state is None:
-                state = model.initial_state(1, h, w)
-            reset = torch.tensor(1.0 if i == 0 else 0.0)
-            out, state = model(buffers, state, reset)
-            outputs.append(out[0].numpy())
-    return outputs
+        return [out[0].numpy() for out in FrameLoop(model).run(frames)]
 
 
 def validate(

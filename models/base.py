@@ -1,41 +1,91 @@
-"""The interface every denoiser family implements, mirroring the ONNX contract (design.md s.3).
+"""What every denoiser family is: a `DenoiserModel` with a `FamilyConfig`, registered by name.
 
-A model maps one frame's canonical buffers plus its temporal state to the
-denoised output and the next state. All temporal logic (reprojection,
-accumulation, history rejection) lives inside `forward`, so that the exported
+A model maps one frame's canonical buffers plus its temporal state to the denoised output
+and the next state, mirroring the ONNX contract (docs/contract.md). All temporal logic
+(reprojection, accumulation, history rejection) lives inside `forward`, so that the exported
 graph is self-contained and the executor only feeds state back.
+
+A family is one module of `rtdenoise.models.families` whose model class is decorated with
+`@register_family`; its constructor takes a config dataclass derived from `FamilyConfig`
+(one `from_dict` / `to_dict` / `validate` for all). See docs/architecture.md, "Adding a family".
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+import typing
+from typing import Any, ClassVar
 
 import torch
 from torch import nn
 
-from rtdenoise.runtime.buffers import BUFFER_CHANNELS  # noqa: F401  (re-exported)
+from rtdenoise.runtime.contract import BUFFER_CHANNELS, Declaration, StateSpec
+
+__all__ = [
+    "BUFFER_CHANNELS",
+    "FAMILIES",
+    "DenoiserModel",
+    "FamilyConfig",
+    "StateSpec",
+    "register_family",
+]
 
 
-@dataclass(frozen=True)
-class StateSpec:
-    """One temporal tensor: `channels` x (H / scale) x (W / scale)."""
+@dataclasses.dataclass(frozen=True)
+class FamilyConfig:
+    """Base of the family config dataclasses: JSON-able constructor arguments.
 
-    name: str
-    channels: int
-    scale: int = 1
+    Fields typed `tuple[...]` are read from JSON lists; `validate` (overridden by families,
+    called by `from_dict`) raises ValueError naming the family, the key and the value.
+    """
+
+    family: ClassVar[str] = ""
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> FamilyConfig:
+        """Defaults overridden by `data`; unknown keys or invalid values raise ValueError."""
+        data = dict(data or {})
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(f"unknown {cls.family} config keys {unknown}; known: {sorted(names)}")
+        hints = typing.get_type_hints(cls)
+        for key, value in data.items():
+            if typing.get_origin(hints[key]) is tuple and isinstance(value, (list, tuple)):
+                data[key] = tuple(value)
+        config = cls(**data)
+        config.validate()
+        return config
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict (tuples as lists) that `from_dict` turns back into this config."""
+        return {
+            k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()
+        }
+
+    def validate(self) -> None:
+        """Raise ValueError for an invalid combination of values (families override)."""
+
+    def fail(self, message: str) -> ValueError:
+        """A ValueError prefixed with the family name, for `validate`."""
+        return ValueError(f"{self.family} {message}")
 
 
 class DenoiserModel(nn.Module):
     """Base class of the denoiser families.
 
-    Subclasses set `family`, `inputs` (canonical buffer names they read),
-    `state_specs` and `pad_multiple`, and implement `forward`.
+    Subclasses set `family`, `config_class`, `inputs` (canonical buffer names they read),
+    `state_specs`, `pad_multiple` and `input_note`, keep their config in `self.cfg`, and
+    implement `forward`.
     """
 
-    family: str = ""
+    family: ClassVar[str] = ""
+    config_class: ClassVar[type[FamilyConfig]] = FamilyConfig
     inputs: tuple[str, ...] = ()
     state_specs: tuple[StateSpec, ...] = ()
     pad_multiple: int = 1
+    input_note: str = ""
+    cfg: FamilyConfig
 
     def forward(
         self,
@@ -52,14 +102,39 @@ class DenoiserModel(nn.Module):
         """
         raise NotImplementedError
 
-    def initial_state(self, n: int, h: int, w: int) -> dict[str, torch.Tensor]:
+    def initial_state(
+        self, n: int, h: int, w: int, device: torch.device | str | None = None
+    ) -> dict[str, torch.Tensor]:
         """Zero state for an N x H x W sequence (what the executor feeds on frame 0)."""
         return {
-            s.name: torch.zeros(n, s.channels, h // s.scale, w // s.scale) for s in self.state_specs
+            s.name: torch.zeros(n, s.channels, h // s.scale, w // s.scale, device=device)
+            for s in self.state_specs
         }
 
     def config(self) -> dict:
-        """The JSON-able constructor arguments (stored in checkpoints and ONNX metadata).
-
-        Families keep their config dataclass in `self.cfg` (with `to_dict()`)."""
+        """The JSON-able constructor arguments (stored in checkpoints and ONNX metadata)."""
         return self.cfg.to_dict()
+
+    def declaration(self) -> Declaration:
+        """What this model declares under the ONNX contract (written into its export)."""
+        return Declaration(
+            family=self.family,
+            config=self.config(),
+            buffers=tuple(self.inputs),
+            state=tuple(self.state_specs),
+            pad_multiple=int(self.pad_multiple),
+            note=self.input_note,
+        )
+
+
+FAMILIES: dict[str, type[DenoiserModel]] = {}
+
+
+def register_family(cls: type[DenoiserModel]) -> type[DenoiserModel]:
+    """Class decorator: make `cls` buildable by its `family` name (models.registry)."""
+    if not cls.family or cls.family in FAMILIES:
+        raise ValueError(f"{cls.__name__}: family name {cls.family!r} is empty or taken")
+    if cls.config_class.family != cls.family:
+        raise ValueError(f"{cls.__name__}: config_class.family must be {cls.family!r}")
+    FAMILIES[cls.family] = cls
+    return cls

@@ -1,36 +1,40 @@
-"""Family name -> model class and default config; `build_model` is the one constructor."""
+"""Family name -> model class; `build_model` is the one constructor.
+
+Every module of `rtdenoise.models.families` is imported on first use; each registers its
+model class with `@register_family` (models.base), so adding a family edits no list here.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import functools
 
-from .afn import AFN, AFNConfig
-from .base import DenoiserModel
-from .wskp import WSKP, WSKPConfig
+from rtdenoise.ops import import_submodules
 
-# family -> (model class, config parser: dict | None -> config object with `to_dict()`)
-FAMILIES: dict[str, tuple[type[DenoiserModel], Callable[[dict | None], object]]] = {
-    "afn": (AFN, AFNConfig.from_dict),
-    "wskp": (WSKP, WSKPConfig.from_dict),
-}
+from .base import FAMILIES, DenoiserModel
+
+
+@functools.cache
+def _discover() -> dict[str, type[DenoiserModel]]:
+    import_submodules("rtdenoise.models.families")
+    return FAMILIES
 
 
 def families() -> list[str]:
     """Registered family names, sorted."""
-    return sorted(FAMILIES)
+    return sorted(_discover())
 
 
-def _lookup(family: str) -> tuple[type[DenoiserModel], Callable[[dict | None], object]]:
+def family_class(family: str) -> type[DenoiserModel]:
+    """The model class of `family`; ValueError listing the known families otherwise."""
     try:
-        return FAMILIES[family]
+        return _discover()[family]
     except KeyError:
         raise ValueError(f"unknown model family {family!r}; known: {families()}") from None
 
 
 def default_config(family: str) -> dict:
     """The JSON-able default config of `family`."""
-    _, parse = _lookup(family)
-    return parse(None).to_dict()
+    return family_class(family).config_class.from_dict(None).to_dict()
 
 
 def build_model(family: str, config: dict | None = None) -> DenoiserModel:
@@ -38,5 +42,5 @@ def build_model(family: str, config: dict | None = None) -> DenoiserModel:
 
     Raises ValueError for an unknown family or unknown / invalid config keys.
     """
-    cls, parse = _lookup(family)
-    return cls(parse(config))
+    cls = family_class(family)
+    return cls(cls.config_class.from_dict(config))

@@ -1,4 +1,4 @@
-"""Supervised training of a denoiser on EXR sequences (design.md s.4, Lee24 IV-B).
+"""Supervised training of a denoiser on EXR sequences (Lee24 IV-B).
 
 Each step draws a batch of clips (random crop + flips + brightness, models.data), unrolls
 the model over the clip with its state carried (reset = 1 and zero state on the clip's
@@ -20,13 +20,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 from rtdenoise.runtime.metrics import psnr
 
 from .base import DenoiserModel
 from .checkpoint import CheckpointError, load_training_state, save_checkpoint
 from .data import ClipSampler, SequenceData, load_sequences
+from .frame_loop import FrameLoop, unroll
 from .losses import sequence_loss
 from .registry import build_model
 
@@ -86,50 +86,20 @@ def restore_rng_state(state: dict, rng: np.random.Generator) -> None:
     torch.set_rng_state(state["torch"])
 
 
-def unroll(model: DenoiserModel, buffers: dict[str, torch.Tensor]) -> torch.Tensor:
-    """Run `model` over clips (B, T, C, H, W) carrying its state; returns (B, T, 3, H, W).
-
-    Frame 0 gets a zero state and reset = 1 (as the executor does on a first frame).
-    """
-    first = next(iter(buffers.values()))
-    b, t, _, h, w = first.shape
-    state = {k: v.to(first.device) for k, v in model.initial_state(b, h, w).items()}
-    outputs = []
-    for i in range(t):
-        reset = torch.tensor(1.0 if i == 0 else 0.0, device=first.device)
-        frame = {name: buf[:, i] for name, buf in buffers.items()}
-        out, state = model(frame, state, reset)
-        outputs.append(out)
-    return torch.stack(outputs, dim=1)
-
-
-def _pad(x: torch.Tensor, multiple: int) -> torch.Tensor:
-    h, w = x.shape[-2:]
-    ph, pw = (-h) % multiple, (-w) % multiple
-    return F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
-
-
 @torch.no_grad()
 def evaluate(model: DenoiserModel, sequences: Sequence[SequenceData]) -> dict:
     """Mean tau-PSNR (Isik21 eq. (14), runtime.metrics.psnr) of the model output and of the
-    noisy input vs the reference, over every frame of every sequence. Frames run one by one
-    at full size, replicate-padded to pad_multiple and cropped back, as the executor does."""
+    noisy input vs the reference, over every frame of every sequence, run at full size by the
+    one frame loop (models.frame_loop: padded, state carried, cropped, as the executor does)."""
     was_training = model.training
     model.eval()
+    loop = FrameLoop(model)
     per_seq = []
     for seq in sequences:
-        h, w = seq.size
-        m = model.pad_multiple
-        state = model.initial_state(1, -(-h // m) * m, -(-w // m) * m)
-        scores, inputs = [], []
-        for i in range(seq.frames):
-            frame = {
-                n: _pad(torch.from_numpy(a[i]).unsqueeze(0), model.pad_multiple)
-                for n, a in seq.buffers.items()
-            }
-            out, state = model(frame, state, torch.tensor(1.0 if i == 0 else 0.0))
-            scores.append(psnr(out[0, :, :h, :w].numpy(), seq.reference[i]))
-            inputs.append(psnr(seq.buffers["color"][i], seq.reference[i]))
+        frames = ({n: a[i] for n, a in seq.buffers.items()} for i in range(seq.frames))
+        outputs = [out[0].numpy() for out in loop.run(frames)]
+        scores = [psnr(out, ref) for out, ref in zip(outputs, seq.reference, strict=True)]
+        inputs = [psnr(c, ref) for c, ref in zip(seq.buffers["color"], seq.reference, strict=True)]
         per_seq.append(
             {"name": seq.name, "psnr": float(np.mean(scores)), "input_psnr": float(np.mean(inputs))}
         )

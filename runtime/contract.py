@@ -1,11 +1,20 @@
-"""The ONNX contract v1 (design.md s.3): parse and validate a model's metadata and graph I/O.
+"""The ONNX contract, version 1: the one module the exporter writes with and the runtime reads
+with (docs/contract.md).
 
 A contract model has float32 inputs `color`, `albedo`, ... ([1, C, H, W]), a scalar
 `reset`, one `state.<name>` per temporal tensor ([1, C, H/scale, W/scale]), and
 outputs `output` ([1, 3, H, W]) plus `state_next.<name>` for every state input. Its
 `metadata_props` say which buffers it reads, its state and its pad multiple.
-`parse_contract` checks all of it and returns a `Contract`; anything off raises a
-one-line `ContractError` naming the model and the problem.
+
+- `BUFFER_CHANNELS`: the canonical frame buffers (the one table; `samples` is rank 5);
+- `StateSpec`: one temporal tensor, as models declare it and the metadata lists it;
+- `Declaration`: what a model declares (family, config, buffers, state, pad multiple, note):
+  its `metadata()` is what the exporter writes, its graph input/output names the wrapper's;
+- `parse_contract` / `contract_from_session`: check metadata + graph I/O, give a `Contract`
+  (whose `declaration` is what the model declared); anything off raises a one-line
+  `ContractError` naming the model and the problem.
+
+Torch-free: models/, export/ and runtime/ all import it.
 """
 
 from __future__ import annotations
@@ -15,7 +24,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from .buffers import BUFFER_CHANNELS as CANONICAL_CHANNELS
 from .errors import InputError
 
 CONTRACT_VERSION = 1
@@ -35,13 +43,20 @@ STATE_IN = "state."
 STATE_OUT = "state_next."
 FLOAT = "tensor(float)"
 
-# Canonical buffers -> channel count; `samples` is per-sample data, [1, S, C, H, W] with S and C
-# model-defined.
-BUFFER_CHANNELS: dict[str, int | None] = {**CANONICAL_CHANNELS, "samples": None}
-BUFFER_RANK: dict[str, int] = {name: 4 for name in BUFFER_CHANNELS} | {"samples": 5}
+# The canonical per-pixel frame buffers, (C, H, W) each: name -> C.
+BUFFER_CHANNELS: dict[str, int] = {
+    "color": 3,  # linear HDR radiance, mean of the frame's samples
+    "color_b": 3,  # an independent second estimate (Choi24)
+    "albedo": 3,
+    "normal": 3,  # in [-1, 1]
+    "depth": 1,  # linear view depth
+    "motion": 2,  # pixels, previous position = current + motion, x right, y down
+}
+# Per-sample data, (S, C, H, W) with S and C model-defined (graph input [1, S, C, H, W]).
+SAMPLES = "samples"
+BUFFER_RANK: dict[str, int] = {name: 4 for name in BUFFER_CHANNELS} | {SAMPLES: 5}
 
 Dim = int | str | None
-
 
 class ContractError(InputError):
     """The model does not obey the rtdenoise ONNX contract (one-line message)."""
@@ -58,7 +73,7 @@ class TensorInfo:
 
 @dataclass(frozen=True)
 class StateSpec:
-    """One temporal tensor: `channels` x (H / scale) x (W / scale) (mirrors models.base)."""
+    """One temporal tensor: `channels` x (H / scale) x (W / scale)."""
 
     name: str
     channels: int
@@ -75,6 +90,39 @@ class StateSpec:
     def shape(self, height: int, width: int) -> tuple[int, int, int, int]:
         """[1, C, H/scale, W/scale] for padded H, W."""
         return (1, self.channels, height // self.scale, width // self.scale)
+
+
+@dataclass(frozen=True)
+class Declaration:
+    """What a model declares under the contract; `metadata()` is what an export writes."""
+
+    family: str
+    config: Mapping[str, Any]
+    buffers: tuple[str, ...]
+    state: tuple[StateSpec, ...]
+    pad_multiple: int
+    note: str = ""
+
+    def input_names(self) -> list[str]:
+        """Graph inputs in order: buffers, `reset`, then `state.<name>`."""
+        return [*self.buffers, RESET, *(s.input_name for s in self.state)]
+
+    def output_names(self) -> list[str]:
+        """Graph outputs in order: `output`, then `state_next.<name>`."""
+        return [OUTPUT, *(s.output_name for s in self.state)]
+
+    def metadata(self) -> dict[str, str]:
+        """The `metadata_props` of an exported model (every required key)."""
+        return {
+            KEY_CONTRACT: str(CONTRACT_VERSION),
+            KEY_FAMILY: self.family,
+            KEY_CONFIG: json.dumps(dict(self.config), sort_keys=True),
+            KEY_INPUTS: json.dumps({"buffers": list(self.buffers), "note": self.note}),
+            KEY_STATE: json.dumps(
+                [{"name": s.name, "channels": s.channels, "scale": s.scale} for s in self.state]
+            ),
+            KEY_PAD: str(self.pad_multiple),
+        }
 
 
 @dataclass(frozen=True)
@@ -112,6 +160,13 @@ class Contract:
     @property
     def buffer_names(self) -> tuple[str, ...]:
         return tuple(b.name for b in self.buffers)
+
+    @property
+    def declaration(self) -> Declaration:
+        """What the model declared (the inverse of `Declaration.metadata`)."""
+        return Declaration(
+            self.family, self.config, self.buffer_names, self.state, self.pad_multiple, self.note
+        )
 
 
 def _static(dim: Dim) -> int | None:
@@ -178,10 +233,8 @@ def parse_contract(
 
     buffers = []
     for name in names:
-        if name not in BUFFER_CHANNELS:
-            raise fail(
-                f"{KEY_INPUTS} names unknown buffer {name!r} (known: {list(BUFFER_CHANNELS)})"
-            )
+        if name not in BUFFER_RANK:
+            raise fail(f"{KEY_INPUTS} names unknown buffer {name!r} (known: {list(BUFFER_RANK)})")
         if name not in graph_in:
             raise fail(f"buffer {name!r} is listed in {KEY_INPUTS} but is not a graph input")
         buffers.append(_buffer_spec(name, graph_in[name].shape, fail))
@@ -261,7 +314,7 @@ def _buffer_spec(name: str, shape: tuple[Dim, ...], fail) -> BufferSpec:
         raise fail(f"buffer {name!r} has graph rank {len(shape)}, the contract needs {rank}")
     if _static(shape[0]) not in (None, 1):
         raise fail(f"buffer {name!r} has batch size {shape[0]}, the contract needs 1")
-    canonical = BUFFER_CHANNELS[name]
+    canonical = BUFFER_CHANNELS.get(name)
     graph_c = _static(shape[rank - 3])
     if canonical is not None and graph_c is not None and graph_c != canonical:
         raise fail(f"buffer {name!r} has {graph_c} channels in the graph, canonical is {canonical}")

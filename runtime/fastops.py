@@ -1,8 +1,9 @@
 """Register the fast (numba) kernels with ONNX Runtime through onnxruntime-extensions.
 
 Each `rtdenoise.runtime.kernels.KERNELS` entry becomes a Python custom op
-`rtdenoise::<Name>` (float32 inputs and output, int64 attributes). A registered op takes
-precedence over the model-local function body of the same name (design.md s.2, form 3).
+`rtdenoise::<Name>` (float32 inputs and outputs, int64 attributes, all from the op's spec). A
+registered op takes precedence over the model-local function body of the same name
+(docs/architecture.md, "The three forms").
 
 Pitfalls handled here (research-notes "Custom ops"):
 - ops must be declared before `register_custom_ops_library`: they are declared at import;
@@ -25,7 +26,9 @@ from collections import Counter
 import numpy as np
 import onnxruntime as ort
 
-from .kernels import KERNELS, KernelDef
+from rtdenoise.ops import DOMAIN
+
+from .kernels import KERNELS, FastKernel
 from .memory import tune_allocator  # noqa: F401  (re-exported)
 
 
@@ -49,7 +52,6 @@ PyCustomOpDef = onnxruntime_extensions.PyCustomOpDef
 get_library_path = onnxruntime_extensions.get_library_path
 onnx_op = onnxruntime_extensions.onnx_op
 
-DOMAIN = "rtdenoise"
 # The onnxruntime-extensions version whose hook protocol `_array_hook` follows.
 HOOK_VERSION = "0.15.2"
 
@@ -106,23 +108,23 @@ def hook_installed() -> bool:
     return _hook_installed
 
 
-def _declare(kdef: KernelDef) -> None:
+def _declare(kernel: FastKernel) -> None:
     def body(*inputs, **attrs):
-        CALLS[kdef.name] += 1
-        return kdef.fn(*inputs, **attrs)
+        CALLS[kernel.name] += 1
+        return kernel(*inputs, **attrs)
 
-    body.__name__ = f"rtdenoise_{kdef.name}"
+    body.__name__ = f"rtdenoise_{kernel.name}"
     onnx_op(
-        op_type=f"{DOMAIN}::{kdef.name}",
-        inputs=[PyCustomOpDef.dt_float] * kdef.n_inputs,
-        outputs=[PyCustomOpDef.dt_float],
-        attrs={a: PyCustomOpDef.dt_int64 for a in kdef.int_attrs},
+        op_type=f"{DOMAIN}::{kernel.name}",
+        inputs=[PyCustomOpDef.dt_float] * len(kernel.spec.inputs),
+        outputs=[PyCustomOpDef.dt_float] * len(kernel.spec.outputs),
+        attrs={a: PyCustomOpDef.dt_int64 for a in kernel.spec.attrs},
     )(body)
 
 
 # Declared once, at import, before any session registers the library.
-for _kdef in KERNELS.values():
-    _declare(_kdef)
+for _kernel in KERNELS.values():
+    _declare(_kernel)
 
 
 def register_fast_kernels(so: ort.SessionOptions) -> None:

@@ -1,10 +1,10 @@
 """Channel layouts: which EXR channels hold which canonical buffer, and their conventions.
 
-A *layout* names, for every canonical buffer (design.md s.3), the EXR layers it
+A *layout* names, for every canonical buffer (docs/contract.md), the EXR layers it
 may come from, tried in order, and a conversion to the canonical conventions
 applied after reading. Two layouts ship:
 
-- ``canonical`` (design.md s.8): ``R,G,B`` (noisy colour), ``colorB.R/G/B``,
+- ``canonical`` (docs/contract.md, "Buffers"): ``R,G,B`` (noisy colour), ``colorB.R/G/B``,
   ``albedo.R/G/B``, ``normal.X/Y/Z``, ``depth.Z``, ``motion.X/Y``; no conversion.
 - ``blender`` (Cycles multilayer, any view-layer prefix): ``Noisy Image`` (else
   ``Combined``), ``Denoising Albedo`` (clamped to [0, 1]), ``Denoising Normal``
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .buffers import BUFFER_CHANNELS
+from .contract import BUFFER_CHANNELS
 from .errors import InputError
 
 COMPONENT_SETS: dict[int, tuple[tuple[str, ...], ...]] = {

@@ -6,8 +6,8 @@ import pytest
 import torch
 from model_inputs import random_buffers
 
-from rtdenoise.models import afn as afn_module
-from rtdenoise.models.afn import AFN, AFNConfig, parameter_count
+from rtdenoise.models.families.afn import AFN, AFNConfig, parameter_count
+from rtdenoise.models.ops import observe_calls
 from rtdenoise.models.registry import build_model, default_config, families
 
 SMALL = {"widths": [8, 12, 16], "kernel_size": 5, "refine_width": 8}
@@ -24,27 +24,23 @@ def model() -> AFN:
     return build_model("afn", SMALL).eval().requires_grad_(False)
 
 
-def test_filter_stages_go_through_the_custom_ops(monkeypatch, model: AFN):
-    calls = {"kernel_apply": [], "adaptive_fusion": []}
-    ka, af = afn_module.ops.kernel_apply, afn_module.ops.adaptive_fusion
+def test_filter_stages_go_through_the_custom_ops(model: AFN):
+    calls = {"KernelApply": [], "AdaptiveFusion": []}
 
-    def kernel_apply(image, kernel, dilation=1):
-        calls["kernel_apply"].append((tuple(image.shape), tuple(kernel.shape)))
-        return ka(image, kernel, dilation)
+    def record(op, inputs, attrs, ms):
+        if op.name == "KernelApply":
+            calls[op.name].append((tuple(inputs[0].shape), tuple(inputs[1].shape)))
+        else:
+            calls[op.name].append(tuple(inputs[1].shape))
 
-    def adaptive_fusion(d_ta, d_low, alpha):
-        calls["adaptive_fusion"].append(tuple(d_low.shape))
-        return af(d_ta, d_low, alpha)
-
-    monkeypatch.setattr(afn_module.ops, "kernel_apply", kernel_apply)
-    monkeypatch.setattr(afn_module.ops, "adaptive_fusion", adaptive_fusion)
-    model(_buffers(), model.initial_state(N, H, W), torch.tensor(1.0))
+    with observe_calls(record):
+        model(_buffers(), model.initial_state(N, H, W), torch.tensor(1.0))
     # K_1spp at half resolution on the pooled 1 spp image, K_TA at full resolution (Lee24 III-B)
-    assert calls["kernel_apply"] == [
+    assert calls["KernelApply"] == [
         ((N, 3, H // 2, W // 2), (N, 25, H // 2, W // 2)),
         ((N, 3, H, W), (N, 25, H, W)),
     ]
-    assert calls["adaptive_fusion"] == [(N, 3, H // 2, W // 2)]
+    assert calls["AdaptiveFusion"] == [(N, 3, H // 2, W // 2)]
 
 
 def test_kernels_are_normalised_and_alpha_in_unit_range(model: AFN):
@@ -77,6 +73,7 @@ def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
     (fast kernels and portable function bodies) follows PyTorch over moving frames."""
     from rtdenoise.export.onnx_export import export_model
     from rtdenoise.export.validate import synthetic_frames, validate
+    from rtdenoise.runtime.denoiser import Denoiser
 
     proto = export_model(model)
     custom = [n.op_type for n in proto.graph.node if n.domain == "rtdenoise"]
@@ -87,6 +84,7 @@ def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
     meta = {p.key: p.value for p in proto.metadata_props}
     assert meta["rtdenoise.family"] == "afn" and meta["rtdenoise.pad_multiple"] == "4"
     data = proto.SerializeToString()
+    assert Denoiser(data).contract.declaration == model.declaration()  # export -> parse
     for h, w in ((32, 40), (24, 16)):
         report = validate(model, data, synthetic_frames(model.inputs, 3, h, w))
         assert report.passed and report.max_error < 1e-5, report.errors

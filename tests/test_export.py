@@ -24,6 +24,7 @@ class EmaDenoiser(DenoiserModel):
     inputs = ("color", "albedo")
     state_specs = (StateSpec("acc", 3, 1), StateSpec("low", 3, 2))
     pad_multiple = 4
+    input_note = "linear radiance"
 
     def __init__(self) -> None:
         super().__init__()
@@ -67,6 +68,25 @@ def test_contract_names_and_metadata(exported):
     assert proto.ir_version == 10
     reset = next(i for i in proto.graph.input if i.name == "reset")
     assert len(reset.type.tensor_type.shape.dim) == 0
+
+
+def test_export_then_parse_gives_back_the_declaration(exported):
+    """The exporter writes with the contract module and the runtime reads with it: the parsed
+    contract of the exported file is exactly what the model declared."""
+    model, proto = exported
+    parsed = Denoiser(proto.SerializeToString()).contract
+    declared = model.declaration()
+    assert parsed.declaration == declared
+    assert (parsed.family, parsed.buffer_names, parsed.pad_multiple) == (
+        "test-ema",
+        declared.buffers,
+        4,
+    )
+    assert [s.input_name for s in parsed.state] == ["state.acc", "state.low"]
+    assert parsed.note == "linear radiance" and parsed.config == {"width": 3}
+    assert declared.input_names() == [i.name for i in proto.graph.input]
+    assert declared.output_names() == [o.name for o in proto.graph.output]
+    assert declared.metadata() == {p.key: p.value for p in proto.metadata_props}
 
 
 def test_validation_over_eight_frames_at_two_sizes(exported):

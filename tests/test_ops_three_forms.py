@@ -1,13 +1,11 @@
-"""Each custom op in its three forms agrees: torch reference == ONNX function body (ORT,
-portable) == fast kernel (ORT with the numba kernels registered, and the numba function
-called directly), on random, border, odd-size, zero-weight and huge-value inputs.
-
-Tolerance: max |a - b| / max(1, max |ref|) <= 1e-4 (float32; different summation order).
+"""KernelApply and AdaptiveFusion (Lee24) in their three forms: torch reference == ONNX
+function body (ORT, portable) == fast kernel (ORT with the numba kernels registered, and called
+directly) == an independent numpy spelling, on random, border, odd-size, zero-weight and
+huge-value inputs. (Every registered op also runs the generic checks of test_op_specs.py.)
 """
 
 from __future__ import annotations
 
-import functools
 import subprocess
 import sys
 import time
@@ -17,60 +15,13 @@ import onnx
 import onnxruntime as ort
 import pytest
 import torch
+from op_forms import RTOL, all_forms, assert_forms_agree, rel_err, session
 
 from rtdenoise.export import ops as eops
-from rtdenoise.models import ops as tops
+from rtdenoise.models.ops.adaptive_fusion import adaptive_fusion
+from rtdenoise.models.ops.kernel_apply import kernel_apply
 from rtdenoise.runtime import fastops
 from rtdenoise.runtime.kernels import KERNELS
-
-RTOL = 1e-4
-
-
-def rel_err(a: np.ndarray, ref: np.ndarray) -> float:
-    return float(np.abs(a - ref).max() / max(1.0, float(np.abs(ref).max())))
-
-
-@functools.cache
-def session(op: str, attrs: tuple, fast: bool, with_function: bool = True):
-    """ORT session for a single-op model with dynamic N, H, W (cached: few numba calls)."""
-    spec = eops.SPECS[op]
-    shapes = {
-        "KernelApply": [["N", "C", "H", "W"], ["N", "KK", "H", "W"]],
-        "AdaptiveFusion": [["N", "C", "H", "W"], ["N", "C", "h", "w"], ["N", 1, "H", "W"]],
-    }[op]
-    model = eops.single_op_model(op, shapes, dict(attrs), with_function=with_function)
-    so = ort.SessionOptions()
-    if fast:
-        fastops.register_fast_kernels(so)
-    sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
-    return sess, spec
-
-
-def all_forms(op: str, inputs: list[np.ndarray], attrs: dict) -> dict[str, np.ndarray]:
-    """Run every form; returns {form: output}."""
-    key = tuple(sorted(attrs.items()))
-    outs = {}
-    reference = tops.OPS[op][2]
-    with torch.no_grad():
-        outs["torch"] = reference(*[torch.from_numpy(x) for x in inputs], **attrs).numpy()
-    for name, fast in (("portable", False), ("ort_fast", True)):
-        sess, spec = session(op, key, fast)
-        before = fastops.CALLS[op]
-        outs[name] = sess.run(None, dict(zip(spec.inputs, inputs, strict=True)))[0]
-        assert fastops.CALLS[op] - before == (1 if fast else 0), name
-    outs["numba"] = KERNELS[op].fn(*inputs, **attrs)
-    return outs
-
-
-def assert_forms_agree(outs: dict[str, np.ndarray], expected: np.ndarray | None = None) -> None:
-    ref = outs["torch"]
-    for form, out in outs.items():
-        assert out.shape == ref.shape and out.dtype == np.float32, form
-        assert np.isfinite(out).all(), form
-        assert rel_err(out, ref) <= RTOL, (form, rel_err(out, ref))
-    if expected is not None:
-        assert rel_err(ref, expected) <= RTOL, rel_err(ref, expected)
-
 
 # ----------------------------------------------------------------------------- KernelApply
 
@@ -185,13 +136,13 @@ def test_adaptive_fusion_edge_values():
 
 def test_adaptive_fusion_rejects_odd_sizes():
     with pytest.raises(ValueError, match="even"):
-        KERNELS["AdaptiveFusion"].fn(
+        KERNELS["AdaptiveFusion"](
             np.zeros((1, 3, 5, 6), np.float32),
             np.zeros((1, 3, 2, 3), np.float32),
             np.zeros((1, 1, 5, 6), np.float32),
         )
     with pytest.raises(ValueError, match="even"):
-        tops.adaptive_fusion(
+        adaptive_fusion(
             torch.zeros(1, 3, 5, 6), torch.zeros(1, 3, 2, 3), torch.zeros(1, 1, 5, 6)
         )
 
@@ -207,10 +158,10 @@ def test_torch_forms_are_differentiable():
 
     image, kernel = t(1, 2, 5, 6), t(1, 9, 5, 6)
     assert torch.autograd.gradcheck(
-        lambda a, b: tops.kernel_apply(a, b, dilation=2), (image, kernel)
+        lambda a, b: kernel_apply(a, b, dilation=2), (image, kernel)
     )
     d_ta, d_low, alpha = t(1, 2, 4, 6), t(1, 2, 2, 3), t(1, 1, 4, 6)
-    assert torch.autograd.gradcheck(tops.adaptive_fusion, (d_ta, d_low, alpha))
+    assert torch.autograd.gradcheck(adaptive_fusion, (d_ta, d_low, alpha))
 
 
 # ------------------------------------------------------------- the model and the mechanism
@@ -233,33 +184,10 @@ def test_single_op_model_has_node_function_and_versions():
     assert all(n.domain in ("", "ai.onnx") for n in func.node)  # standard ops only
     with pytest.raises(ValueError, match="attributes"):
         eops.single_op_model("KernelApply", [[1, 3, 4, 4], [1, 9, 4, 4]], {"kernel_size": 3})
-
-
-@pytest.mark.parametrize("op", ["KernelApply", "AdaptiveFusion"])
-def test_model_without_function_runs_only_with_fast_kernels(op):
-    spec = eops.SPECS[op]
-    attrs = {"kernel_size": 3, "dilation": 1} if spec.int_attrs else {}
-    inputs = spec.example_inputs((1, 3, 8, 10), attrs, np.random.default_rng(0))
-    model = eops.single_op_model(op, [x.shape for x in inputs], attrs, with_function=False)
-    assert len(model.functions) == 0
-    with pytest.raises(Exception, match=op):
-        ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
-    so = ort.SessionOptions()
-    fastops.register_fast_kernels(so)
-    sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
-    before = fastops.CALLS[op]
-    (out,) = sess.run(None, dict(zip(spec.inputs, inputs, strict=True)))
-    assert fastops.CALLS[op] == before + 1
-    with torch.no_grad():
-        ref = tops.OPS[op][2](*[torch.from_numpy(x) for x in inputs], **attrs).numpy()
-    assert rel_err(out, ref) <= RTOL
-
-
-def test_fast_ops_list_matches_export_specs():
-    assert set(fastops.FAST_OPS) == set(eops.SPECS) == set(tops.OPS)
-    for name, spec in eops.SPECS.items():
-        assert KERNELS[name].int_attrs == spec.int_attrs
-        assert KERNELS[name].n_inputs == len(spec.inputs)
+    with pytest.raises(ValueError, match="kernel_size"):  # the spec's check, on static shapes
+        eops.single_op_model(
+            "KernelApply", [[1, 3, 4, 4], [1, 9, 4, 4]], {"kernel_size": 5, "dilation": 1}
+        )
 
 
 def test_array_hook_installed_and_fast():
@@ -281,7 +209,7 @@ def test_array_hook_installed_and_fast():
     assert isinstance(rv[2], np.ndarray) and np.all(rv[2] == 2.0)
     # through ORT on a large output: faster than merely listing the values would be
     h, w = 720, 1280
-    sess, spec = session("AdaptiveFusion", (), True)
+    sess = session("AdaptiveFusion", (), True)
     feed = {
         "d_ta": np.ones((1, 3, h, w), np.float32),
         "d_low": np.ones((1, 3, h // 2, w // 2), np.float32),

@@ -1,70 +1,29 @@
 """WeightSharingFilter and KernelFusion (Fan21) in their three forms: torch reference == ONNX
 function body (ORT, portable) == fast kernel (ORT with the numba kernels, and called directly)
 == an independent numpy spelling; gradients of the torch forms; export of a tiny model.
-
-Tolerance: max |a - b| / max(1, max |ref|) <= 1e-4 (float32; different summation order).
 """
 
 from __future__ import annotations
-
-import functools
 
 import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
 import torch
+from op_forms import RTOL, all_forms, assert_forms_agree, rel_err
 from torch import nn
 
 from rtdenoise.export import ops as eops
-from rtdenoise.export.ops.bench import bench_op
-from rtdenoise.models import ops as tops
-from rtdenoise.models.ops.weight_sharing_filter import attrs_to_sizes, sizes_to_attrs
+from rtdenoise.export.onnx_export import to_onnx
+from rtdenoise.export.op_bench import bench_op
+from rtdenoise.models.ops.kernel_fusion import kernel_fusion
+from rtdenoise.models.ops.weight_sharing_filter import weight_sharing_filter
+from rtdenoise.ops import get_spec
+from rtdenoise.ops.weight_sharing_filter import attrs_to_sizes, sizes_to_attrs
 from rtdenoise.runtime import fastops
 from rtdenoise.runtime.kernels import KERNELS
 
-RTOL = 1e-4
 FAN21 = {"size_min": 3, "size_step": 2, "count": 6}  # sizes 3, 5, ..., 13
-
-SHAPES = {
-    "WeightSharingFilter": [["N", "C", "H", "W"], ["N", "S", "H", "W"]],
-    "KernelFusion": [["N", "SC", "H", "W"], ["N", "S", "H", "W"]],
-}
-
-
-def rel_err(a: np.ndarray, ref: np.ndarray) -> float:
-    return float(np.abs(a - ref).max() / max(1.0, float(np.abs(ref).max())))
-
-
-@functools.cache
-def session(op: str, attrs: tuple, fast: bool) -> ort.InferenceSession:
-    """Single-op model with dynamic N, C, H, W (cached: one session per op/attrs/path)."""
-    model = eops.single_op_model(op, SHAPES[op], dict(attrs))
-    so = ort.SessionOptions()
-    if fast:
-        fastops.register_fast_kernels(so)
-    return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
-
-
-def all_forms(op: str, inputs: list[np.ndarray], attrs: dict) -> dict[str, np.ndarray]:
-    """{form: output} for torch, ORT portable, ORT fast (kernel must run) and numba."""
-    outs = {}
-    with torch.no_grad():
-        outs["torch"] = tops.OPS[op][2](*[torch.from_numpy(x) for x in inputs], **attrs).numpy()
-    feed = dict(zip(eops.SPECS[op].inputs, inputs, strict=True))
-    for name, fast in (("portable", False), ("ort_fast", True)):
-        before = fastops.CALLS[op]
-        outs[name] = session(op, tuple(sorted(attrs.items())), fast).run(None, feed)[0]
-        assert fastops.CALLS[op] - before == (1 if fast else 0), name
-    outs["numba"] = KERNELS[op].fn(*inputs, **attrs)
-    return outs
-
-
-def assert_forms_agree(outs: dict[str, np.ndarray], expected: np.ndarray) -> None:
-    for form, out in outs.items():
-        assert out.shape == expected.shape and out.dtype == np.float32, form
-        assert np.isfinite(out).all(), form
-        assert rel_err(out, expected) <= RTOL, (form, rel_err(out, expected))
 
 
 # ------------------------------------------------------------------- WeightSharingFilter
@@ -176,7 +135,7 @@ def test_wsf_numba_matches_on_a_tall_image():
     rng = np.random.default_rng(6)
     image = rng.random((1, 2, 211, 29), dtype=np.float32)
     weights = np.exp(rng.standard_normal((1, 2, 211, 29))).astype(np.float32)
-    out = KERNELS["WeightSharingFilter"].fn(image, weights, 3, 10, 2)  # sizes 3, 13
+    out = KERNELS["WeightSharingFilter"](image, weights, 3, 10, 2)  # sizes 3, 13
     assert rel_err(out, wsf_numpy(image, weights, [3, 13])) <= RTOL
 
 
@@ -189,11 +148,11 @@ def test_wsf_sizes_and_validation():
             sizes_to_attrs(bad)
     image, weights = torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8)
     with pytest.raises(ValueError, match="importance map"):
-        tops.weight_sharing_filter(image, weights, sizes=(3, 5, 7))
+        weight_sharing_filter(image, weights, sizes=(3, 5, 7))
     with pytest.raises(ValueError, match="odd"):
-        KERNELS["WeightSharingFilter"].fn(image.numpy(), weights.numpy(), 4, 2, 2)
-    with pytest.raises(ValueError, match="shape"):
-        KERNELS["WeightSharingFilter"].fn(image.numpy(), weights.numpy(), 3, 2, 3)
+        KERNELS["WeightSharingFilter"](image.numpy(), weights.numpy(), 4, 2, 2)
+    with pytest.raises(ValueError, match="importance map"):  # one message for every form
+        KERNELS["WeightSharingFilter"](image.numpy(), weights.numpy(), 3, 2, 3)
 
 
 # --------------------------------------------------------------------------- KernelFusion
@@ -246,9 +205,9 @@ def test_kernel_fusion_extreme_logits_and_huge_images():
 
 def test_kernel_fusion_validation():
     with pytest.raises(ValueError, match="S\\*C"):
-        tops.kernel_fusion(torch.rand(1, 7, 4, 4), torch.rand(1, 3, 4, 4))
+        kernel_fusion(torch.rand(1, 7, 4, 4), torch.rand(1, 3, 4, 4))
     with pytest.raises(ValueError, match="S\\*C"):
-        KERNELS["KernelFusion"].fn(
+        KERNELS["KernelFusion"](
             np.zeros((1, 7, 4, 4), np.float32), np.zeros((1, 3, 4, 4), np.float32)
         )
 
@@ -275,14 +234,14 @@ def test_torch_forms_are_differentiable(one_torch_thread):
 
     image, weights = t(1, 2, 5, 6), t(1, 2, 5, 6, positive=True)
     assert torch.autograd.gradcheck(
-        lambda a, b: tops.weight_sharing_filter(a, b, sizes=(1, 3)), (image, weights)
+        lambda a, b: weight_sharing_filter(a, b, sizes=(1, 3)), (image, weights)
     )
     image, weights = t(2, 1, 4, 5), t(2, 3, 4, 5, positive=True)
     assert torch.autograd.gradcheck(
-        lambda a, b: tops.weight_sharing_filter(a, b, sizes=(3, 5, 7)), (image, weights)
+        lambda a, b: weight_sharing_filter(a, b, sizes=(3, 5, 7)), (image, weights)
     )
     images, logits = t(2, 6, 4, 5), t(2, 3, 4, 5)
-    assert torch.autograd.gradcheck(tops.kernel_fusion, (images, logits))
+    assert torch.autograd.gradcheck(kernel_fusion, (images, logits))
 
 
 def test_zero_weights_give_zero_gradient_not_nan(one_torch_thread):
@@ -290,7 +249,7 @@ def test_zero_weights_give_zero_gradient_not_nan(one_torch_thread):
     weights = torch.zeros(1, 1, 6, 6)
     weights[..., 5, 5] = 1.0
     weights.requires_grad_(True)
-    out = tops.weight_sharing_filter(image, weights, sizes=(3,))
+    out = weight_sharing_filter(image, weights, sizes=(3,))
     out.sum().backward()
     assert torch.isfinite(image.grad).all() and torch.isfinite(weights.grad).all()
     assert float(out.detach()[0, :, 0, 0].abs().max()) == 0.0
@@ -311,15 +270,15 @@ class TinyWSKP(nn.Module):
     def forward(self, color: torch.Tensor) -> torch.Tensor:
         x = self.net(color)
         weights = torch.exp(x[:, :3])
-        filtered = tops.weight_sharing_filter(color, weights, sizes=(3, 5, 7))
-        return tops.kernel_fusion(filtered, x[:, 3:])
+        filtered = weight_sharing_filter(color, weights, sizes=(3, 5, 7))
+        return kernel_fusion(filtered, x[:, 3:])
 
 
 @pytest.fixture(scope="module")
 def exported() -> tuple[nn.Module, onnx.ModelProto]:
     module = TinyWSKP().eval()
     h, w = torch.export.Dim("H", min=2, max=1024), torch.export.Dim("W", min=2, max=1024)
-    model = eops.to_onnx(
+    model = to_onnx(
         module,
         (torch.rand(1, 3, 16, 24),),
         dynamic_shapes={"color": {2: h, 3: w}},
@@ -369,7 +328,7 @@ def test_export_ort_matches_torch_at_two_sizes(exported, fast):
 
 @pytest.mark.parametrize("op", ["WeightSharingFilter", "KernelFusion"])
 def test_bench_op_runs_on_valid_example_inputs(op):
-    spec = eops.SPECS[op]
+    spec = get_spec(op)
     attrs = dict(spec.default_attrs)
     inputs = spec.example_inputs((1, 3, 8, 10), attrs, np.random.default_rng(0))
     if op == "WeightSharingFilter":

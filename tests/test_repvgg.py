@@ -7,8 +7,8 @@ import torch
 from torch import nn
 
 from rtdenoise.export.deploy import to_deploy
+from rtdenoise.models.families.wskp import WSKP
 from rtdenoise.models.repvgg import RepVGGBlock, fold_bn, identity_kernel, pad_kernel
-from rtdenoise.models.wskp import WSKP
 
 
 def _randomise(module: nn.Module, seed: int, scale: float = 0.2, shift: float = 1.0) -> None:

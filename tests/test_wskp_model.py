@@ -10,10 +10,11 @@ import torch
 import torch.nn.functional as F
 from model_inputs import random_buffers
 
-from rtdenoise.models import wskp as wskp_module
-from rtdenoise.models.afn import parameter_count
+from rtdenoise.models.families.afn import parameter_count
+from rtdenoise.models.families.wskp import WSKP, WSKPConfig
+from rtdenoise.models.ops import observe_calls
 from rtdenoise.models.registry import build_model, default_config, families
-from rtdenoise.models.wskp import WSKP, WSKPConfig
+from rtdenoise.ops.weight_sharing_filter import attrs_to_sizes
 
 N, H, W = 2, 24, 20
 
@@ -51,28 +52,23 @@ def test_pipeline_with_fixed_logits_is_a_blend_of_box_means():
     torch.testing.assert_close(out, expected, rtol=1e-5, atol=1e-5)
 
 
-def test_filter_stages_get_clamped_importance_and_the_accumulation(monkeypatch):
+def test_filter_stages_get_clamped_importance_and_the_accumulation():
     m = WSKP({"bias": True, "width": 4, "layers": 2}).eval()
     s = len(m.cfg.sizes)
     with torch.no_grad():
         bias = m.importance_net.blocks[-1].branches[0][0].bias
         bias[:s] = torch.tensor([100.0, -100.0, 0.0, 1.0, 2.0, 3.0])  # beyond the clamp
     calls = {}
-    wsf, kf = wskp_module.ops.weight_sharing_filter, wskp_module.ops.kernel_fusion
 
-    def weight_sharing_filter(image, weights, sizes):
-        calls["wsf"] = (image.clone(), weights.clone(), tuple(sizes))
-        return wsf(image, weights, sizes)
+    def record(op, inputs, attrs, ms):
+        if op.name == "WeightSharingFilter":
+            calls["wsf"] = (inputs[0].clone(), inputs[1].clone(), tuple(attrs_to_sizes(**attrs)))
+        else:
+            calls["kf"] = (inputs[0].shape, inputs[1].shape)
 
-    def kernel_fusion(images, logits):
-        calls["kf"] = (images.shape, logits.shape)
-        return kf(images, logits)
-
-    monkeypatch.setattr(wskp_module.ops, "weight_sharing_filter", weight_sharing_filter)
-    monkeypatch.setattr(wskp_module.ops, "kernel_fusion", kernel_fusion)
     m.importance_net.register_forward_pre_hook(lambda _, args: calls.update(net_in=args[0]))
     b = _buffers(5)
-    with torch.no_grad():
+    with torch.no_grad(), observe_calls(record):
         out, _ = m(b, m.initial_state(N, H, W), torch.tensor(1.0))
     # network input (Fan21, 10 ch): (r_TA x albedo)^(1/2.2), albedo, (n + 1) / 2, depth in [0, 1]
     net_in = calls["net_in"]
@@ -140,6 +136,7 @@ def test_exports_one_5x5_conv_per_block_and_matches_ort(model: WSKP):
     from rtdenoise.export.onnx_export import export_model
     from rtdenoise.export.validate import synthetic_frames, validate
     from rtdenoise.models.data import load_sequence
+    from rtdenoise.runtime.denoiser import Denoiser
     from rtdenoise.shipped import sample_sequences
 
     proto = export_model(model)
@@ -161,6 +158,7 @@ def test_exports_one_5x5_conv_per_block_and_matches_ort(model: WSKP):
     assert meta["rtdenoise.family"] == "wskp" and meta["rtdenoise.pad_multiple"] == "1"
 
     data = proto.SerializeToString()
+    assert Denoiser(data).contract.declaration == model.declaration()  # export -> parse
     seq = load_sequence(sample_sequences()[0], model.inputs)
     frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
     assert len(frames) == 8 and np.any(frames[1]["motion"] != 0)

@@ -1,74 +1,45 @@
-"""ONNX form of the custom ops: schemas, exporter translations, model-local function bodies.
+"""ONNX form of the custom ops: one function body per op (named like its spec in rtdenoise.ops).
 
-Adding an op: a new module with a `SPEC` (see base.OpSpec), and one line in `OPS`.
-
-Export recipe (what `to_onnx` does):
-    torch.onnx.export(module, args, dynamo=True, opset_version=OPSET,
-                      dynamic_shapes=..., custom_translation_table=custom_translation_table())
-    model = attach_functions(program.model_proto)   # + rtdenoise opset import, IR 10
+Importing this package imports every module, which registers each op's `OnnxForm` (schema,
+exporter translation, FunctionProto builder) in `ONNX_FORMS`. `attach_functions` adds the
+bodies of the ops a model uses; `single_op_model` builds a one-node model for tests and
+benchmarks. See docs/architecture.md, "Adding an op".
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from typing import Any
 
 import onnx
 from onnx import TensorProto, helper
 
-from . import adaptive_fusion, kernel_apply, kernel_fusion, weight_sharing_filter
-from .base import DOMAIN, DOMAIN_VERSION, IR_VERSION, OPSET, OpSpec
+from rtdenoise.ops import DOMAIN, DOMAIN_VERSION, import_submodules
 
-OPS: list[OpSpec] = [
-    kernel_apply.SPEC,
-    adaptive_fusion.SPEC,
-    weight_sharing_filter.SPEC,
-    kernel_fusion.SPEC,
-]
-SPECS: dict[str, OpSpec] = {s.name: s for s in OPS}
+from .base import IR_VERSION, ONNX_FORMS, OPSET, OnnxForm, function_body
+
+import_submodules(__name__)
 
 __all__ = [
     "DOMAIN",
     "DOMAIN_VERSION",
     "IR_VERSION",
-    "OPS",
+    "ONNX_FORMS",
     "OPSET",
-    "SPECS",
-    "OpSpec",
+    "OnnxForm",
     "attach_functions",
     "custom_translation_table",
-    "export_options",
-    "exporting",
+    "function_body",
     "function_protos",
     "single_op_model",
-    "to_onnx",
     "used_ops",
 ]
 
 
 def custom_translation_table() -> dict:
     """{torch.ops.rtdenoise.<op>.default: onnxscript translation} for torch.onnx.export."""
-    return {spec.torch_op(): spec.translation for spec in OPS}
+    from rtdenoise.models.ops import TORCH_OPS
 
-
-def exporting(enabled: bool = True):
-    """Context manager forcing the custom-op form of the torch ops (models.ops.exporting).
-
-    Not required under torch.onnx.export(dynamo=True), where torch.compiler.is_exporting()
-    already switches the ops; useful for other tracers.
-    """
-    from rtdenoise.models.ops import exporting as _exporting
-
-    return _exporting(enabled)
-
-
-def export_options() -> dict[str, Any]:
-    """Keyword arguments for torch.onnx.export that emit the rtdenoise custom nodes."""
-    return {
-        "dynamo": True,
-        "opset_version": OPSET,
-        "custom_translation_table": custom_translation_table(),
-    }
+    return {TORCH_OPS[name].overload(): form.translation for name, form in ONNX_FORMS.items()}
 
 
 def _model_opset(model: onnx.ModelProto) -> int:
@@ -98,7 +69,7 @@ def used_ops(model: onnx.ModelProto) -> list[str]:
             nodes.extend(f.node)
     for node in nodes:
         if node.domain == DOMAIN:
-            if node.op_type not in SPECS:
+            if node.op_type not in ONNX_FORMS:
                 raise ValueError(f"unknown custom op {DOMAIN}.{node.op_type}")
             names.add(node.op_type)
     return sorted(names)
@@ -106,7 +77,7 @@ def used_ops(model: onnx.ModelProto) -> list[str]:
 
 def function_protos(used_op_names: Sequence[str], opset: int = OPSET) -> list[onnx.FunctionProto]:
     """Model-local FunctionProtos (bodies in ai.onnx opset `opset`) for the named ops."""
-    return [SPECS[name].build_function(opset) for name in sorted(set(used_op_names))]
+    return [ONNX_FORMS[name].build_function(opset) for name in sorted(set(used_op_names))]
 
 
 def attach_functions(model: onnx.ModelProto) -> onnx.ModelProto:
@@ -116,7 +87,7 @@ def attach_functions(model: onnx.ModelProto) -> onnx.ModelProto:
     replaced, so calling it twice is harmless.
     """
     names = used_ops(model)
-    keep = [f for f in model.functions if not (f.domain == DOMAIN and f.name in SPECS)]
+    keep = [f for f in model.functions if not (f.domain == DOMAIN and f.name in ONNX_FORMS)]
     del model.functions[:]
     model.functions.extend(keep)
     model.functions.extend(function_protos(names, _model_opset(model)))
@@ -125,52 +96,51 @@ def attach_functions(model: onnx.ModelProto) -> onnx.ModelProto:
     return model
 
 
-def to_onnx(module, args: tuple, dynamic_shapes=None, **kwargs) -> onnx.ModelProto:
-    """Export `module` with the custom nodes and attach their function bodies.
+Dims = Sequence[int | str | None]
 
-    Extra keyword arguments go to torch.onnx.export (e.g. input_names, output_names).
-    """
-    import torch
 
-    options = export_options() | kwargs
-    program = torch.onnx.export(module, args, dynamic_shapes=dynamic_shapes, **options)
-    return attach_functions(program.model_proto)
+def dynamic_shapes(op_name: str) -> list[list[str]]:
+    """One fully dynamic shape per input of `op_name` (a dim name per input and axis)."""
+    spec = ONNX_FORMS[op_name].spec
+    return [[f"{a.name}_{i}" for i in range(a.rank)] for a in spec.inputs]
 
 
 def single_op_model(
     op_name: str,
-    input_shapes: Sequence[Sequence[int | str | None]],
+    input_shapes: Sequence[Dims] | None = None,
     attrs: dict[str, int] | None = None,
     with_function: bool = True,
-    output_shapes: Sequence[Sequence[int | str | None]] | None = None,
 ) -> onnx.ModelProto:
     """A one-node model `rtdenoise.<op_name>` (IR 10, opset 18) for tests and benchmarks.
 
-    input_shapes: one shape per op input, dims as ints or names (dynamic); attrs: the int
-    attributes (all required). with_function=False leaves the FunctionProto out, so the model
-    only runs when the fast kernels are registered. output_shapes defaults to the op's
-    `OpSpec.output_shape`, else to the first input's shape for every output.
+    input_shapes: one shape per op input, dims as ints or names (default: all dynamic);
+    attrs: the int attributes (all required). with_function=False leaves the FunctionProto
+    out, so the model only runs when the fast kernels are registered. Output shapes follow
+    the spec's rule when every input dim is a number, else only their rank is declared.
     """
-    spec = SPECS[op_name]
+    spec = ONNX_FORMS[op_name].spec
     attrs = dict(attrs or {})
-    if set(attrs) != set(spec.int_attrs):
-        raise ValueError(f"{op_name} needs attributes {spec.int_attrs}, got {sorted(attrs)}")
-    if len(input_shapes) != len(spec.inputs):
-        raise ValueError(f"{op_name} has {len(spec.inputs)} inputs, got {len(input_shapes)} shapes")
-    if output_shapes is None and spec.output_shape is not None:
-        output_shapes = spec.output_shape([list(x) for x in input_shapes], attrs)
-    out_shapes = output_shapes or [input_shapes[0]] * len(spec.outputs)
-    node = helper.make_node(op_name, list(spec.inputs), list(spec.outputs), domain=DOMAIN, **attrs)
+    input_shapes = [list(s) for s in (input_shapes or dynamic_shapes(op_name))]
+    if set(attrs) != set(spec.attrs):
+        raise ValueError(f"{op_name} needs attributes {list(spec.attrs)}, got {sorted(attrs)}")
+    if all(isinstance(d, int) for s in input_shapes for d in s):
+        spec.validate_call([tuple(s) for s in input_shapes], attrs)
+        out_shapes: list[Dims] = [list(s) for s in spec.output_shapes(input_shapes, attrs)]
+    else:
+        out_shapes = [[None] * a.rank for a in spec.outputs]
+    node = helper.make_node(
+        op_name, list(spec.input_names), list(spec.output_names), domain=DOMAIN, **attrs
+    )
     graph = helper.make_graph(
         [node],
         f"single_{op_name}",
         [
             helper.make_tensor_value_info(name, TensorProto.FLOAT, list(shape))
-            for name, shape in zip(spec.inputs, input_shapes, strict=True)
+            for name, shape in zip(spec.input_names, input_shapes, strict=True)
         ],
         [
             helper.make_tensor_value_info(name, TensorProto.FLOAT, list(shape))
-            for name, shape in zip(spec.outputs, out_shapes, strict=True)
+            for name, shape in zip(spec.output_names, out_shapes, strict=True)
         ],
     )
     model = helper.make_model(

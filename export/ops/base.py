@@ -1,90 +1,118 @@
-"""Shared pieces of the ONNX form of the custom ops (design.md s.2, form 2).
+"""`function_body`: the ONNX form of a custom op from its spec and one body builder.
 
-Each op module defines an `OpSpec`: the `onnx.defs.OpSchema` of the node
-`rtdenoise.<Op>` (domain `rtdenoise`, version 1), the onnxscript translation function the
-torch exporter calls for `torch.ops.rtdenoise.<op>.default`, and a builder for the
-model-local `FunctionProto` whose body spells the op in standard ONNX ops (the portable
-path: stock ONNX Runtime inlines it when no fast kernel is registered).
+    @function_body("KernelApply")
+    def kernel_apply_body(opset: int) -> list[onnx.NodeProto]: ...
+
+The builder returns the op's meaning in standard ONNX ops (the portable path: stock ONNX
+Runtime inlines the model-local FunctionProto when no fast kernel is registered). Everything
+else comes from the op's `OpSpec` (rtdenoise.ops), here, once for every op: the
+`onnx.defs.OpSchema` of the node `rtdenoise.<Name>`, the onnxscript translation that the torch
+exporter calls for `torch.ops.rtdenoise.<torch_name>.default`, and the FunctionProto.
 """
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
-import numpy as np
 import onnx
 from onnx import defs, helper
 from onnxscript import values
 
-DOMAIN = "rtdenoise"
-DOMAIN_VERSION = 1
+from rtdenoise.ops import DOMAIN, DOMAIN_VERSION, OpSpec, get_spec
+
 OPSET = 18  # ai.onnx opset of exported models (ORT 1.31 accepts <= 26)
 IR_VERSION = 10  # ORT 1.31 accepts <= 13; onnx 1.23's make_model default (14) is refused
 
 CUSTOM_OPSET = values.Opset(DOMAIN, DOMAIN_VERSION)
+BodyBuilder = Callable[[int], list[onnx.NodeProto]]
 
 
-@dataclass(frozen=True)
-class OpSpec:
-    """Everything the exporter needs to know about one custom op.
-
-    name: ONNX op_type (e.g. "KernelApply"); torch_name: the custom op's name in the
-    `torch.ops.rtdenoise` namespace (e.g. "kernel_apply"); int_attrs: the node's
-    attribute names (all INT, all required); build_function(opset) returns the FunctionProto;
-    example_inputs(shape, attrs, rng) gives float32 inputs for an (N, C, H, W) image shape
-    (tests, benchmarks); default_attrs are typical attribute values; output_shape(input_shapes,
-    attrs) gives the output shapes of a single-op model (None: every output like input 0).
-    """
-
-    name: str
-    torch_name: str
-    inputs: tuple[str, ...]
-    outputs: tuple[str, ...]
-    int_attrs: tuple[str, ...]
-    schema: defs.OpSchema
-    translation: Callable
-    build_function: Callable[[int], onnx.FunctionProto]
-    example_inputs: Callable[[tuple[int, ...], dict, np.random.Generator], list[np.ndarray]]
-    default_attrs: dict[str, int] = field(default_factory=dict)
-    output_shape: Callable[[list, dict], list[list]] | None = None
-
-    def torch_op(self):
-        """The `torch.ops.rtdenoise.<torch_name>.default` overload (imports the torch forms)."""
-        import torch
-
-        import rtdenoise.models.ops  # noqa: F401  (registers the custom ops)
-
-        return getattr(getattr(torch.ops, DOMAIN), self.torch_name).default
-
-
-def make_schema(
-    name: str,
-    inputs: tuple[str, ...],
-    outputs: tuple[str, ...],
-    int_attrs: tuple[str, ...],
-    doc: str,
-) -> defs.OpSchema:
-    """OpSchema with float tensors everywhere and required INT attributes."""
+def make_schema(spec: OpSpec) -> defs.OpSchema:
+    """OpSchema of `rtdenoise.<Name>`: float tensors everywhere, required INT attributes."""
     param = defs.OpSchema.FormalParameter
     return defs.OpSchema(
-        name,
+        spec.name,
         DOMAIN,
         DOMAIN_VERSION,
-        doc,
-        inputs=[param(i, "T") for i in inputs],
-        outputs=[param(o, "T") for o in outputs],
+        spec.doc,
+        inputs=[param(a.name, "T") for a in spec.inputs],
+        outputs=[param(a.name, "T") for a in spec.outputs],
         type_constraints=[("T", ["tensor(float)"], "float32 tensors")],
         attributes=[
             defs.OpSchema.Attribute(a, defs.OpSchema.AttrType.INT, a, required=True)
-            for a in int_attrs
+            for a in spec.attrs
         ],
     )
 
 
-def make_op(schema: defs.OpSchema) -> values.Op:
-    """An onnxscript Op that emits the custom node (it must carry the schema)."""
-    return values.Op(CUSTOM_OPSET, schema.name, schema)
+def make_translation(spec: OpSpec, op: values.Op) -> Callable:
+    """fn(*inputs, *int attributes) -> the custom node, with the named signature the
+    exporter's dispatcher matches against the torch op's schema."""
+    n = len(spec.inputs)
+
+    def translation(*args):
+        return op(*args[:n], **dict(zip(spec.attrs, args[n:], strict=True)))
+
+    params = [
+        inspect.Parameter(a.name, inspect.Parameter.POSITIONAL_OR_KEYWORD) for a in spec.inputs
+    ]
+    params += [
+        inspect.Parameter(a, inspect.Parameter.POSITIONAL_OR_KEYWORD, annotation=int)
+        for a in spec.attrs
+    ]
+    translation.__signature__ = inspect.Signature(params)  # type: ignore[attr-defined]
+    translation.__annotations__ = {a: int for a in spec.attrs}
+    translation.__name__ = f"{spec.torch_name}_translation"
+    return translation
+
+
+@dataclass(frozen=True)
+class OnnxForm:
+    """The ONNX form of one op: schema, exporter translation and FunctionProto builder."""
+
+    spec: OpSpec
+    schema: defs.OpSchema
+    translation: Callable
+    body: BodyBuilder
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def build_function(self, opset: int) -> onnx.FunctionProto:
+        """Model-local FunctionProto `rtdenoise.<Name>` over the standard opset `opset`."""
+        return helper.make_function(
+            DOMAIN,
+            self.spec.name,
+            list(self.spec.input_names),
+            list(self.spec.output_names),
+            self.body(opset),
+            opset_imports=[helper.make_opsetid("", opset)],
+            attributes=list(self.spec.attrs),
+            doc_string=self.spec.doc,
+        )
+
+
+ONNX_FORMS: dict[str, OnnxForm] = {}
+
+
+def function_body(spec: OpSpec | str) -> Callable[[BodyBuilder], OnnxForm]:
+    """Decorator: a body builder (opset -> standard-op nodes over the spec's input and output
+    names; attributes via `attr_const`) -> the op's registered OnnxForm."""
+    spec = get_spec(spec) if isinstance(spec, str) else spec
+
+    def wrap(body: BodyBuilder) -> OnnxForm:
+        if spec.name in ONNX_FORMS:
+            raise ValueError(f"{spec.name} has two ONNX function bodies")
+        schema = make_schema(spec)
+        op = values.Op(CUSTOM_OPSET, spec.name, schema)  # an onnxscript Op must carry its schema
+        form = OnnxForm(spec, schema, make_translation(spec, op), body)
+        ONNX_FORMS[spec.name] = form
+        return form
+
+    return wrap
 
 
 def int_const(name: str, value: list[int] | int) -> onnx.NodeProto:
@@ -92,6 +120,13 @@ def int_const(name: str, value: list[int] | int) -> onnx.NodeProto:
     if isinstance(value, int):
         return helper.make_node("Constant", [], [name], value_int=value)
     return helper.make_node("Constant", [], [name], value_ints=value)
+
+
+def float_const(name: str, value: float) -> onnx.NodeProto:
+    """Constant scalar float32 node."""
+    return helper.make_node(
+        "Constant", [], [name], value=helper.make_tensor("", onnx.TensorProto.FLOAT, [], [value])
+    )
 
 
 def attr_const(name: str, attr: str) -> onnx.NodeProto:
@@ -103,25 +138,3 @@ def attr_const(name: str, attr: str) -> onnx.NodeProto:
     ref.ref_attr_name = attr
     node.attribute.append(ref)
     return node
-
-
-def make_function(
-    spec_name: str,
-    inputs: tuple[str, ...],
-    outputs: tuple[str, ...],
-    int_attrs: tuple[str, ...],
-    nodes: list[onnx.NodeProto],
-    opset: int,
-    doc: str,
-) -> onnx.FunctionProto:
-    """Model-local FunctionProto `rtdenoise.<spec_name>` over the standard opset `opset`."""
-    return helper.make_function(
-        DOMAIN,
-        spec_name,
-        list(inputs),
-        list(outputs),
-        nodes,
-        opset_imports=[helper.make_opsetid("", opset)],
-        attributes=list(int_attrs),
-        doc_string=doc,
-    )

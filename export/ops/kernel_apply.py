@@ -1,35 +1,15 @@
-"""ONNX form of KernelApply (Lee24 eq. (2)); torch form: rtdenoise.models.ops.kernel_apply.
+"""KernelApply as an ONNX function body (Lee24 eq. (2)); defined in rtdenoise.ops.kernel_apply.
 
-Node: rtdenoise.KernelApply(image (N,C,H,W), kernel (N,k*k,H,W)) -> output (N,C,H,W),
-attributes kernel_size (odd k) and dilation (>= 1), both required on every node.
-Function body: edge-Pad once, then a Loop over the k*k taps accumulating
+Body: edge-Pad once, then a Loop over the k*k taps accumulating
 kernel[:, t] * shifted window (works for any k, dilation and dynamic H, W).
 """
 
 from __future__ import annotations
 
-import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from .base import OpSpec, attr_const, int_const, make_function, make_op, make_schema
-
-NAME = "KernelApply"
-INPUTS = ("image", "kernel")
-OUTPUTS = ("output",)
-ATTRS = ("kernel_size", "dilation")
-DOC = (
-    "out[n,c,y,x] = sum_{i,j<k} kernel[n,i*k+j,y,x] * image[n,c,clamp(y+(i-k//2)*d),"
-    " clamp(x+(j-k//2)*d)] (Lee24 eq. 2)"
-)
-
-SCHEMA = make_schema(NAME, INPUTS, OUTPUTS, ATTRS, DOC)
-_OP = make_op(SCHEMA)
-
-
-def translation(image, kernel, kernel_size: int, dilation: int):
-    """torch.ops.rtdenoise.kernel_apply -> one rtdenoise.KernelApply node."""
-    return _OP(image, kernel, kernel_size=kernel_size, dilation=dilation)
+from .base import attr_const, function_body, int_const
 
 
 def _loop_body() -> onnx.GraphProto:
@@ -71,10 +51,11 @@ def _loop_body() -> onnx.GraphProto:
     )
 
 
-def build_function(opset: int) -> onnx.FunctionProto:
-    """Model-local FunctionProto rtdenoise.KernelApply in standard ops."""
+@function_body("KernelApply")
+def kernel_apply_body(opset: int) -> list[onnx.NodeProto]:
+    """rtdenoise.KernelApply in standard ops."""
     mk = helper.make_node
-    nodes = [
+    return [
         attr_const("k", "kernel_size"),
         attr_const("d", "dilation"),
         int_const("two", 2),
@@ -94,31 +75,3 @@ def build_function(opset: int) -> onnx.FunctionProto:
         mk("Mul", ["k", "k"], ["taps"]),
         mk("Loop", ["taps", "", "acc0"], ["output"], body=_loop_body()),
     ]
-    return make_function(NAME, INPUTS, OUTPUTS, ATTRS, nodes, opset, DOC)
-
-
-def example_inputs(
-    shape: tuple[int, ...], attrs: dict, rng: np.random.Generator
-) -> list[np.ndarray]:
-    """image (N, C, H, W) in [0, 1) and a softmax-normalised kernel (N, k*k, H, W)."""
-    n, _, h, w = shape
-    k = attrs["kernel_size"]
-    image = rng.random(shape, dtype=np.float32)
-    logits = rng.standard_normal((n, k * k, h, w), dtype=np.float32)
-    kernel = np.exp(logits - logits.max(axis=1, keepdims=True))
-    kernel /= kernel.sum(axis=1, keepdims=True)
-    return [image, kernel.astype(np.float32)]
-
-
-SPEC = OpSpec(
-    name=NAME,
-    torch_name="kernel_apply",
-    inputs=INPUTS,
-    outputs=OUTPUTS,
-    int_attrs=ATTRS,
-    schema=SCHEMA,
-    translation=translation,
-    build_function=build_function,
-    example_inputs=example_inputs,
-    default_attrs={"kernel_size": 7, "dilation": 1},
-)

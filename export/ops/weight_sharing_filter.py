@@ -1,11 +1,7 @@
-"""ONNX form of WeightSharingFilter (Fan21); torch form: rtdenoise.models.ops.weight_sharing_filter.
+"""WeightSharingFilter as an ONNX function body (Fan21); defined in
+rtdenoise.ops.weight_sharing_filter.
 
-Node: rtdenoise.WeightSharingFilter(image (N,C,H,W), weights (N,S,H,W)) -> output (N,S*C,H,W),
-attributes size_min (odd), size_step (even), count (= S), all required on every node; box size
-i is size_min + i*size_step. ONNX Runtime extension ops take no list attributes, hence three
-ints instead of a `sizes` list.
-
-Function body: a Loop over the sizes. Iteration i stacks [w_i * image, w_i] as (N*(C+1), 1, H, W)
+Body: a Loop over the sizes. Iteration i stacks [w_i * image, w_i] as (N*(C+1), 1, H, W)
 planes, zero-Pads them by s//2 and box-sums them with two Convs against all-ones 1 x s and
 s x 1 kernels built at run time (ConstantOfShape: kernel size from the attributes, H and W
 dynamic), then divides (Where: 0 where the weight sum is not positive). The scan output
@@ -14,34 +10,10 @@ dynamic), then divides (Where: 0 where the weight sum is not positive). The scan
 
 from __future__ import annotations
 
-import numpy as np
 import onnx
 from onnx import TensorProto, helper
 
-from .base import OpSpec, attr_const, int_const, make_function, make_op, make_schema
-
-NAME = "WeightSharingFilter"
-INPUTS = ("image", "weights")
-OUTPUTS = ("output",)
-ATTRS = ("size_min", "size_step", "count")
-DOC = (
-    "out[:, i*C:(i+1)*C] = boxsum_s(w_i * image) / boxsum_s(w_i) (0 where boxsum_s(w_i) <= 0), "
-    "s = size_min + i*size_step, zero-padded s x s boxes (Fan21 weight-sharing kernels)"
-)
-
-SCHEMA = make_schema(NAME, INPUTS, OUTPUTS, ATTRS, DOC)
-_OP = make_op(SCHEMA)
-
-
-def translation(image, weights, size_min: int, size_step: int, count: int):
-    """torch.ops.rtdenoise.weight_sharing_filter -> one rtdenoise.WeightSharingFilter node."""
-    return _OP(image, weights, size_min=size_min, size_step=size_step, count=count)
-
-
-def _float_const(name: str, value: float) -> onnx.NodeProto:
-    return helper.make_node(
-        "Constant", [], [name], value=helper.make_tensor("", TensorProto.FLOAT, [], [value])
-    )
+from .base import attr_const, float_const, function_body, int_const
 
 
 def _loop_body() -> onnx.GraphProto:
@@ -56,8 +28,8 @@ def _loop_body() -> onnx.GraphProto:
         int_const("b_ones2", [1, 1]),
         int_const("b_ones3", [1, 1, 1]),
         int_const("b_two", 2),
-        _float_const("b_fzero", 0.0),
-        _float_const("b_fone", 1.0),
+        float_const("b_fzero", 0.0),
+        float_const("b_fone", 1.0),
         # s and r = s // 2 as 1-element tensors
         mk("Mul", ["i", "step"], ["b_is"]),
         mk("Add", ["smin", "b_is"], ["b_s"]),
@@ -110,10 +82,11 @@ def _ones_value() -> onnx.TensorProto:
     return helper.make_tensor("", TensorProto.FLOAT, [1], [1.0])
 
 
-def build_function(opset: int) -> onnx.FunctionProto:
-    """Model-local FunctionProto rtdenoise.WeightSharingFilter in standard ops."""
+@function_body("WeightSharingFilter")
+def weight_sharing_filter_body(opset: int) -> list[onnx.NodeProto]:
+    """rtdenoise.WeightSharingFilter in standard ops."""
     mk = helper.make_node
-    nodes = [
+    return [
         attr_const("smin", "size_min"),
         attr_const("step", "size_step"),
         attr_const("count_", "count"),
@@ -132,35 +105,3 @@ def build_function(opset: int) -> onnx.FunctionProto:
         mk("Concat", ["n", "minus1", "hw"], ["out_shape"], axis=0),
         mk("Reshape", ["scan_t", "out_shape"], ["output"]),
     ]
-    return make_function(NAME, INPUTS, OUTPUTS, ATTRS, nodes, opset, DOC)
-
-
-def example_inputs(
-    shape: tuple[int, ...], attrs: dict, rng: np.random.Generator
-) -> list[np.ndarray]:
-    """image (N, C, H, W) in [0, 1) and importance maps exp(2 * normal) > 0 (N, count, H, W)."""
-    n, _, h, w = shape
-    image = rng.random(shape, dtype=np.float32)
-    weights = np.exp(2.0 * rng.standard_normal((n, attrs["count"], h, w), dtype=np.float32))
-    return [image, weights.astype(np.float32)]
-
-
-def output_shape(input_shapes: list[list], attrs: dict) -> list[list]:
-    """[(N, count*C, H, W)] from the image shape (N, C, H, W); C*count unnamed if C is."""
-    n, c, h, w = input_shapes[0]
-    return [[n, c * attrs["count"] if isinstance(c, int) else None, h, w]]
-
-
-SPEC = OpSpec(
-    name=NAME,
-    torch_name="weight_sharing_filter",
-    inputs=INPUTS,
-    outputs=OUTPUTS,
-    int_attrs=ATTRS,
-    schema=SCHEMA,
-    translation=translation,
-    build_function=build_function,
-    example_inputs=example_inputs,
-    default_attrs={"size_min": 3, "size_step": 2, "count": 6},
-    output_shape=output_shape,
-)

@@ -1,4 +1,4 @@
-"""Fast kernel of AdaptiveFusion (Lee24 eq. (3)); reference: rtdenoise.models.ops.adaptive_fusion.
+"""AdaptiveFusion as a fast kernel (Lee24 eq. (3)); defined in rtdenoise.ops.adaptive_fusion.
 
 out = d_ta + alpha * U(d_low - D(d_ta)), D = 2 x 2 mean, U = nearest x2; H and W even.
 One low-resolution row (two output rows) per parallel iteration.
@@ -9,10 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import as_f32c
-
-NAME = "AdaptiveFusion"
-INT_ATTRS: tuple[str, ...] = ()
+from .fast_kernel import fast_kernel
 
 
 @njit(cache=True, fastmath=True)
@@ -45,24 +42,9 @@ def _adaptive_fusion_nb(d_ta, d_low, alpha, out):
             _fuse_row(d_ta[n, c, y], alpha[n, 0, y], diff, out[n, c, y])
 
 
-def adaptive_fusion(d_ta: np.ndarray, d_low: np.ndarray, alpha: np.ndarray) -> np.ndarray:
-    """d_ta (N, C, H, W), d_low (N, C, H/2, W/2), alpha (N, 1, H, W) -> (N, C, H, W)."""
-    d_ta = as_f32c(d_ta, "d_ta")
-    d_low = as_f32c(d_low, "d_low")
-    alpha = as_f32c(alpha, "alpha")
-    n, c, h, w = d_ta.shape
-    if h % 2 or w % 2:
-        raise ValueError(f"AdaptiveFusion needs even H and W, got {h}x{w}")
-    if d_low.shape != (n, c, h // 2, w // 2):
-        raise ValueError(f"d_low has shape {d_low.shape}; expected {(n, c, h // 2, w // 2)}")
-    if alpha.shape != (n, 1, h, w):
-        raise ValueError(f"alpha has shape {alpha.shape}; expected {(n, 1, h, w)}")
-    out = np.empty_like(d_ta)
+@fast_kernel("AdaptiveFusion")
+def adaptive_fusion(
+    d_ta: np.ndarray, d_low: np.ndarray, alpha: np.ndarray, out: np.ndarray
+) -> None:
+    """d_ta (N, C, H, W), d_low (N, C, H/2, W/2), alpha (N, 1, H, W) -> out (N, C, H, W)."""
     _adaptive_fusion_nb(d_ta, d_low, alpha, out)
-    return out
-
-
-def warmup() -> None:
-    """Compile (or load from the numba cache) on a tiny input."""
-    z = np.zeros((1, 1, 2, 2), np.float32)
-    adaptive_fusion(z, np.zeros((1, 1, 1, 1), np.float32), np.zeros((1, 1, 2, 2), np.float32))

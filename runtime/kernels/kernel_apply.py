@@ -1,7 +1,4 @@
-"""Fast kernel of KernelApply (Lee24 eq. (2)); reference: rtdenoise.models.ops.kernel_apply.
-
-out[n, c, y, x] = sum_{i, j < k} kernel[n, i*k + j, y, x]
-                  * image[n, c, clamp(y + (i - r) d), clamp(x + (j - r) d)],  r = k // 2
+"""KernelApply as a fast kernel (Lee24 eq. (2)); defined in rtdenoise.ops.kernel_apply.
 
 Row-vectorised: one output row per parallel iteration; for each kernel row i the source row
 is copied once into an edge-replicated padded buffer, so the taps are branch-free contiguous
@@ -14,10 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import as_f32c
-
-NAME = "KernelApply"
-INT_ATTRS = ("kernel_size", "dilation")
+from .fast_kernel import fast_kernel
 
 
 @njit(cache=True, fastmath=True)
@@ -75,23 +69,9 @@ def _kernel_apply_nb(image, kernel, out, k, d):
                     _fma_row(out[n, c, y], weight, padded[c], (k - 1) * d)
 
 
+@fast_kernel("KernelApply")
 def kernel_apply(
-    image: np.ndarray, kernel: np.ndarray, kernel_size: int, dilation: int
-) -> np.ndarray:
-    """image (N, C, H, W), kernel (N, k*k, H, W) float32 -> (N, C, H, W) float32."""
-    image = as_f32c(image, "image")
-    kernel = as_f32c(kernel, "kernel")
-    k, d = int(kernel_size), int(dilation)
-    n, _, h, w = image.shape
-    if k < 1 or k % 2 == 0 or d < 1:
-        raise ValueError(f"KernelApply needs odd kernel_size and dilation >= 1, got {k}, {d}")
-    if kernel.shape != (n, k * k, h, w):
-        raise ValueError(f"kernel has shape {kernel.shape}; expected {(n, k * k, h, w)}")
-    out = np.empty_like(image)
-    _kernel_apply_nb(image, kernel, out, k, d)
-    return out
-
-
-def warmup() -> None:
-    """Compile (or load from the numba cache) on a tiny input."""
-    kernel_apply(np.zeros((1, 1, 2, 2), np.float32), np.zeros((1, 1, 2, 2), np.float32), 1, 1)
+    image: np.ndarray, kernel: np.ndarray, out: np.ndarray, kernel_size: int, dilation: int
+) -> None:
+    """image (N, C, H, W), kernel (N, k*k, H, W) -> out (N, C, H, W)."""
+    _kernel_apply_nb(image, kernel, out, kernel_size, dilation)

@@ -1,4 +1,4 @@
-"""Fast kernel of KernelFusion (Fan21 kernel fusion); reference: models.ops.kernel_fusion.
+"""KernelFusion as a fast kernel (Fan21 kernel fusion); defined in rtdenoise.ops.kernel_fusion.
 
 out[n, c] = sum_i softmax_i(logits[n])[i] * images[n, i*C + c],  C = channels(images) / S.
 One output row per parallel iteration, every step a contiguous row operation: max over S,
@@ -11,10 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import add_into, as_f32c
-
-NAME = "KernelFusion"
-INT_ATTRS: tuple[str, ...] = ()
+from ._common import add_into
+from .fast_kernel import fast_kernel
 
 _LOG2E = np.float32(1.4426950408889634)
 _LN2_HI = np.float32(0.693145751953125)  # ln 2 split in two for an exact k * ln2_hi
@@ -110,23 +108,7 @@ def _kernel_fusion_nb(images, logits, out):
                 _fma_row(out[n, c, y], prob[i], images[n, i * n_ch + c, y])
 
 
-def kernel_fusion(images: np.ndarray, logits: np.ndarray) -> np.ndarray:
-    """images (N, S*C, H, W), logits (N, S, H, W) float32 -> (N, C, H, W) float32."""
-    images = as_f32c(images, "images")
-    logits = as_f32c(logits, "logits")
-    n, sc, h, w = images.shape
-    s = logits.shape[1]
-    if s < 1 or sc % s or logits.shape != (n, s, h, w):
-        raise ValueError(
-            f"images {images.shape} and logits {logits.shape}: expected (N, S*C, H, W) and "
-            "(N, S, H, W)"
-        )
-    out = np.empty((n, sc // s, h, w), dtype=np.float32)
-    if out.size:
-        _kernel_fusion_nb(images, logits, out)
-    return out
-
-
-def warmup() -> None:
-    """Compile (or load from the numba cache) on a tiny input."""
-    kernel_fusion(np.zeros((1, 2, 2, 2), np.float32), np.zeros((1, 2, 2, 2), np.float32))
+@fast_kernel("KernelFusion")
+def kernel_fusion(images: np.ndarray, logits: np.ndarray, out: np.ndarray) -> None:
+    """images (N, S*C, H, W), logits (N, S, H, W) -> out (N, C, H, W)."""
+    _kernel_fusion_nb(images, logits, out)

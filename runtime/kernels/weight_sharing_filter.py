@@ -1,4 +1,4 @@
-"""Fast kernel of WeightSharingFilter (Fan21); reference: models.ops.weight_sharing_filter.
+"""WeightSharingFilter as a fast kernel (Fan21); defined in rtdenoise.ops.weight_sharing_filter.
 
 out[:, i*C + c] = boxsum_s(w_i * image_c) / boxsum_s(w_i)  (0 where boxsum_s(w_i) <= 0),
 s = size_min + i * size_step, zero-padded s x s boxes.
@@ -24,21 +24,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import add_into, as_f32c
+from rtdenoise.ops.weight_sharing_filter import attrs_to_sizes
 
-NAME = "WeightSharingFilter"
-INT_ATTRS = ("size_min", "size_step", "count")
+from ._common import add_into
+from .fast_kernel import fast_kernel
+
 STRIP_ROWS = 96  # output rows per parallel task (rounded to whole blocks of s)
-
-
-def sizes_from_attrs(size_min: int, size_step: int, count: int) -> list[int]:
-    """[size_min + i * size_step for i < count]; ValueError unless all odd >= 1."""
-    if count < 1 or size_min < 1 or size_min % 2 == 0 or size_step < 0 or size_step % 2:
-        raise ValueError(
-            "WeightSharingFilter needs count >= 1, odd size_min >= 1 and even size_step >= 0, "
-            f"got size_min={size_min}, size_step={size_step}, count={count}"
-        )
-    return [size_min + i * size_step for i in range(count)]
 
 
 @njit(cache=True, fastmath=True)
@@ -176,24 +167,21 @@ def _tasks(n_img: int, h: int, sizes: list[int]) -> tuple[np.ndarray, ...]:
     return tuple(np.ascontiguousarray(col, dtype=np.int64) for col in np.array(rows).T)
 
 
+@fast_kernel("WeightSharingFilter")
 def weight_sharing_filter(
-    image: np.ndarray, weights: np.ndarray, size_min: int, size_step: int, count: int
-) -> np.ndarray:
-    """image (N, C, H, W), weights (N, count, H, W) >= 0, float32 -> (N, count*C, H, W)."""
-    image = as_f32c(image, "image")
-    weights = as_f32c(weights, "weights")
-    sizes = sizes_from_attrs(int(size_min), int(size_step), int(count))
-    n, c, h, w = image.shape
-    if weights.shape != (n, len(sizes), h, w):
-        raise ValueError(f"weights have shape {weights.shape}; expected {(n, len(sizes), h, w)}")
-    out = np.empty((n, len(sizes) * c, h, w), dtype=np.float32)
-    if out.size:
-        _wsf_nb(image, weights, out, np.array(sizes, np.int64), *_tasks(n, h, sizes))
-    return out
-
-
-def warmup() -> None:
-    """Compile (or load from the numba cache) on a tiny input."""
-    weight_sharing_filter(
-        np.zeros((1, 1, 2, 2), np.float32), np.ones((1, 1, 2, 2), np.float32), 3, 2, 1
+    image: np.ndarray,
+    weights: np.ndarray,
+    out: np.ndarray,
+    size_min: int,
+    size_step: int,
+    count: int,
+) -> None:
+    """image (N, C, H, W), weights (N, count, H, W) >= 0 -> out (N, count*C, H, W)."""
+    sizes = attrs_to_sizes(size_min, size_step, count)
+    _wsf_nb(
+        image,
+        weights,
+        out,
+        np.array(sizes, np.int64),
+        *_tasks(image.shape[0], image.shape[2], sizes),
     )

@@ -18,7 +18,8 @@
    images (`ops.kernel_fusion`);
 7. remodulate: output = fused * (albedo + albedo_eps).
 
-At export every RepVGG block folds into one 5 x 5 conv (`models.repvgg`, Fan21 s.1.1), by
+Steps 1-2 are the shared opening `models.accumulation.demodulate_and_accumulate`. At export
+every RepVGG block folds into one 5 x 5 conv (`models.repvgg`, Fan21 s.1.1), by
 the generic `export.deploy.to_deploy` pass.
 
 Choices the paper leaves open (all in `WSKPConfig`, stored in checkpoints):
@@ -43,87 +44,61 @@ Choices the paper leaves open (all in `WSKPConfig`, stored in checkpoints):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from . import ops
-from .base import DenoiserModel, StateSpec
-from .features import depth01, frame_inputs
-from .ops.weight_sharing_filter import sizes_to_attrs
-from .repvgg import RepVGGBlock
-from .temporal import TemporalConfig, temporal_accumulation
+from rtdenoise.ops.weight_sharing_filter import FAN21_SIZES, sizes_to_attrs
+
+from ..accumulation import (
+    ACCUMULATION_INPUTS,
+    ACCUMULATION_NOTE,
+    ACCUMULATION_STATE,
+    AccumulatingConfig,
+    demodulate_and_accumulate,
+)
+from ..base import DenoiserModel, register_family
+from ..features import depth01
+from ..ops.kernel_fusion import kernel_fusion
+from ..ops.weight_sharing_filter import weight_sharing_filter
+from ..repvgg import RepVGGBlock
 
 INPUT_CHANNELS = 10  # (r_TA x albedo)^(1/2.2), albedo, normal, depth
 
 
 @dataclass(frozen=True)
-class WSKPConfig:
+class WSKPConfig(AccumulatingConfig):
     """Sizes and constants of the WSKP model (see the module docstring)."""
+
+    family = "wskp"
 
     width: int = 14
     layers: int = 6
     kernel_sizes: tuple[int, ...] = (5, 3, 1)
-    sizes: tuple[int, ...] = (3, 5, 7, 9, 11, 13)
+    sizes: tuple[int, ...] = FAN21_SIZES
     negative_slope: float = 0.1
     bn: bool = False
     bias: bool = False
     gamma: float = 2.2
     logit_clamp: float = 20.0
-    albedo_eps: float = 1e-2
     depth_scale: str = "log"  # "log" or "linear"
-    depth_tolerance: float = 0.1
-    normal_threshold: float = 0.9
-    min_alpha: float = 0.2
-    max_history: float = 64.0
-
-    @classmethod
-    def from_dict(cls, data: dict | None) -> WSKPConfig:
-        """Defaults overridden by `data`; unknown keys raise ValueError naming them."""
-        data = dict(data or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"unknown wskp config keys {unknown}; known: {sorted(known)}")
-        for key in ("kernel_sizes", "sizes"):
-            if key in data:
-                data[key] = tuple(int(v) for v in data[key])
-        config = cls(**data)
-        config.validate()
-        return config
 
     def validate(self) -> None:
         if self.width < 1:
-            raise ValueError(f"wskp width must be >= 1, got {self.width}")
+            raise self.fail(f"width must be >= 1, got {self.width}")
         if self.layers < 2:
-            raise ValueError(f"wskp layers must be >= 2, got {self.layers}")
+            raise self.fail(f"layers must be >= 2, got {self.layers}")
         if not self.kernel_sizes or any(k < 1 or k % 2 == 0 for k in self.kernel_sizes):
-            raise ValueError(f"wskp kernel_sizes must be odd and >= 1, got {self.kernel_sizes}")
+            raise self.fail(f"kernel_sizes must be odd and >= 1, got {self.kernel_sizes}")
         sizes_to_attrs(self.sizes)  # odd, evenly spaced (ValueError otherwise)
         if self.logit_clamp <= 0:
-            raise ValueError(f"wskp logit_clamp must be > 0, got {self.logit_clamp}")
+            raise self.fail(f"logit_clamp must be > 0, got {self.logit_clamp}")
         if self.gamma <= 0:
-            raise ValueError(f"wskp gamma must be > 0, got {self.gamma}")
+            raise self.fail(f"gamma must be > 0, got {self.gamma}")
         if self.depth_scale not in ("log", "linear"):
-            raise ValueError(
-                f"wskp depth_scale must be 'log' or 'linear', got {self.depth_scale!r}"
-            )
-
-    def to_dict(self) -> dict:
-        data = asdict(self)
-        data["kernel_sizes"] = list(self.kernel_sizes)
-        data["sizes"] = list(self.sizes)
-        return data
-
-    def temporal(self) -> TemporalConfig:
-        return TemporalConfig(
-            depth_tolerance=self.depth_tolerance,
-            normal_threshold=self.normal_threshold,
-            min_alpha=self.min_alpha,
-            max_history=self.max_history,
-        )
+            raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
 
 
 class ImportanceNet(nn.Module):
@@ -145,18 +120,16 @@ class ImportanceNet(nn.Module):
         return self.blocks[-1](x)
 
 
+@register_family
 class WSKP(DenoiserModel):
     """Fan21 weight sharing kernel prediction with temporal accumulation (module docstring)."""
 
     family = "wskp"
-    inputs = ("color", "albedo", "normal", "depth", "motion")
-    state_specs = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))
+    config_class = WSKPConfig
+    inputs = ACCUMULATION_INPUTS
+    state_specs = ACCUMULATION_STATE
     pad_multiple = 1
-    input_note = (
-        "pass linear HDR radiance (color), albedo, normal in [-1, 1], linear view depth and "
-        "motion in pixels (previous = current + motion); do NOT demodulate, tonemap, "
-        "accumulate or normalise: the graph does it"
-    )
+    input_note = ACCUMULATION_NOTE
 
     def __init__(self, config: WSKPConfig | dict | None = None) -> None:
         super().__init__()
@@ -164,7 +137,6 @@ class WSKP(DenoiserModel):
             config = WSKPConfig.from_dict(config)
         config.validate()
         self.cfg = config
-        self._temporal = config.temporal()
         self.importance_net = ImportanceNet(INPUT_CHANNELS, 2 * len(config.sizes), config)
 
     def forward(
@@ -173,21 +145,15 @@ class WSKP(DenoiserModel):
         state: dict[str, torch.Tensor],
         reset: torch.Tensor,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        color, albedo, normal, depth, motion = frame_inputs(buffers)
-
-        # 1. Demodulation.
-        modulation = albedo + self.cfg.albedo_eps
-        irradiance = color / modulation
-
-        # 2. Temporal accumulation of the demodulated irradiance.
-        r_ta, _, next_ta, next_geometry = temporal_accumulation(
-            irradiance, motion, depth, normal, state["ta"], state["geometry"], reset, self._temporal
-        )
+        # 1-2. Demodulation and temporal accumulation of the irradiance.
+        frame = demodulate_and_accumulate(buffers, state, reset, self.cfg)
+        r_ta = frame.accumulated
 
         # 3. Network input (10 ch): gamma-compressed accumulated colour and the features.
-        radiance = torch.pow(torch.clamp(r_ta * modulation, min=0.0), 1.0 / self.cfg.gamma)
-        features = (albedo, 0.5 * (normal + 1.0), depth01(depth, self.cfg.depth_scale))
-        net_in = torch.cat((radiance, *features), dim=1)
+        radiance = torch.pow(torch.clamp(r_ta * frame.modulation, min=0.0), 1.0 / self.cfg.gamma)
+        normal01 = 0.5 * (frame.normal + 1.0)
+        depth_01 = depth01(frame.depth, self.cfg.depth_scale)
+        net_in = torch.cat((radiance, frame.albedo, normal01, depth_01), dim=1)
 
         # 4. ImportanceNet: S importance logits and S fusion logits.
         s = len(self.cfg.sizes)
@@ -196,14 +162,13 @@ class WSKP(DenoiserModel):
         importance = torch.exp(torch.clamp(logits[:, :s], -clamp, clamp))
 
         # 5. Weight sharing kernels of sizes 3 .. 13 on the HDR accumulated irradiance.
-        filtered = ops.weight_sharing_filter(r_ta, importance, self.cfg.sizes)
+        filtered = weight_sharing_filter(r_ta, importance, self.cfg.sizes)
 
         # 6. Kernel fusion (softmax over the S sizes per pixel).
-        fused = ops.kernel_fusion(filtered, logits[:, s:])
+        fused = kernel_fusion(filtered, logits[:, s:])
 
         # 7. Remodulation.
-        output = fused * modulation
-        return output, {"ta": next_ta, "geometry": next_geometry}
+        return fused * frame.modulation, frame.state
 
 
 __all__ = ["INPUT_CHANNELS", "WSKP", "ImportanceNet", "WSKPConfig"]

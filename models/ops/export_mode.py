@@ -1,10 +1,10 @@
-"""The switch between the differentiable torch form of a filter stage and its export node.
+"""The export-mode switch: differentiable torch form of a filter stage, or its export node.
 
 Model code calls one public function per op (e.g. `kernel_apply`). Normally it runs the
 plain differentiable torch implementation (training, numeric reference). While the model
 is being exported it calls the op's `torch.library.custom_op` instead, so that the op
 becomes ONE node (`torch.ops.rtdenoise.<op>`) that the ONNX exporter translates into the
-custom node `rtdenoise.<Op>` (design.md s.2).
+custom node `rtdenoise.<Op>` (docs/architecture.md, "The three forms").
 
 The switch is on when either `torch.compiler.is_exporting()` is true (set by
 `torch.export`, which `torch.onnx.export(dynamo=True)` uses) or the `exporting()` context
@@ -18,8 +18,6 @@ import threading
 from collections.abc import Iterator
 
 import torch
-
-NAMESPACE = "rtdenoise"
 
 _state = threading.local()
 

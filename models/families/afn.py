@@ -17,6 +17,8 @@
 7. refinement (eq. (4)): o = i + R(i, f), a small conv net;
 8. remodulate: output = o * (albedo + albedo_eps).
 
+Steps 1-2 are the shared opening `models.accumulation.demodulate_and_accumulate`.
+
 Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
 - albedo_eps = 1e-2 in demodulation and remodulation (exactly invertible; zero albedo, e.g.
   the background, keeps its radiance as 100 x irradiance).
@@ -41,71 +43,48 @@ Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from . import ops
-from .base import DenoiserModel, StateSpec
-from .features import depth01, frame_inputs
-from .functional import channel_softmax
-from .temporal import TemporalConfig, temporal_accumulation
+from ..accumulation import (
+    ACCUMULATION_INPUTS,
+    ACCUMULATION_NOTE,
+    ACCUMULATION_STATE,
+    AccumulatingConfig,
+    demodulate_and_accumulate,
+)
+from ..base import DenoiserModel, register_family
+from ..features import depth01
+from ..functional import channel_softmax
+from ..ops.adaptive_fusion import adaptive_fusion
+from ..ops.kernel_apply import kernel_apply
 
 
 @dataclass(frozen=True)
-class AFNConfig:
+class AFNConfig(AccumulatingConfig):
     """Sizes and constants of the AFN model (see the module docstring)."""
+
+    family = "afn"
 
     widths: tuple[int, ...] = (24, 32, 48)
     kernel_size: int = 7
     refine_width: int = 16
     refine_layers: int = 3
-    albedo_eps: float = 1e-2
     depth_scale: str = "log"  # "log" or "linear"
     history_input: bool = True
-    depth_tolerance: float = 0.1
-    normal_threshold: float = 0.9
-    min_alpha: float = 0.2
-    max_history: float = 64.0
-
-    @classmethod
-    def from_dict(cls, data: dict | None) -> AFNConfig:
-        """Defaults overridden by `data`; unknown keys raise ValueError naming them."""
-        data = dict(data or {})
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"unknown afn config keys {unknown}; known: {sorted(known)}")
-        if "widths" in data:
-            data["widths"] = tuple(int(w) for w in data["widths"])
-        config = cls(**data)
-        config.validate()
-        return config
 
     def validate(self) -> None:
         if len(self.widths) < 2 or any(w < 1 for w in self.widths):
-            raise ValueError(f"afn widths must list >= 2 positive sizes, got {self.widths}")
+            raise self.fail(f"widths must list >= 2 positive sizes, got {self.widths}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:
-            raise ValueError(f"afn kernel_size must be odd, got {self.kernel_size}")
+            raise self.fail(f"kernel_size must be odd, got {self.kernel_size}")
         if self.refine_layers < 1:
-            raise ValueError(f"afn refine_layers must be >= 1, got {self.refine_layers}")
+            raise self.fail(f"refine_layers must be >= 1, got {self.refine_layers}")
         if self.depth_scale not in ("log", "linear"):
-            raise ValueError(f"afn depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
-
-    def to_dict(self) -> dict:
-        data = asdict(self)
-        data["widths"] = list(self.widths)
-        return data
-
-    def temporal(self) -> TemporalConfig:
-        return TemporalConfig(
-            depth_tolerance=self.depth_tolerance,
-            normal_threshold=self.normal_threshold,
-            min_alpha=self.min_alpha,
-            max_history=self.max_history,
-        )
+            raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
 
 
 def _conv_block(c_in: int, c_out: int) -> nn.Sequential:
@@ -178,17 +157,15 @@ class Refinement(nn.Module):
         return self.net(x)
 
 
+@register_family
 class AFN(DenoiserModel):
     """Lee24 adaptive fusion network with temporal accumulation (see the module docstring)."""
 
     family = "afn"
-    inputs = ("color", "albedo", "normal", "depth", "motion")
-    state_specs = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))
-    input_note = (
-        "pass linear HDR radiance (color), albedo, normal in [-1, 1], linear view depth and "
-        "motion in pixels (previous = current + motion); do NOT demodulate, tonemap, "
-        "accumulate or normalise: the graph does it"
-    )
+    config_class = AFNConfig
+    inputs = ACCUMULATION_INPUTS
+    state_specs = ACCUMULATION_STATE
+    input_note = ACCUMULATION_NOTE
 
     def __init__(self, config: AFNConfig | dict | None = None) -> None:
         super().__init__()
@@ -197,7 +174,6 @@ class AFN(DenoiserModel):
         config.validate()
         self.cfg = config
         self.pad_multiple = 2 ** (len(config.widths) - 1)
-        self._temporal = config.temporal()
         # r_1spp (3) + r_TA (3) + albedo (3) + normal (3) + depth (1) [+ TA weight (1)]
         in_channels = 13 + int(config.history_input)
         self.predictor = KernelPredictor(in_channels, config.widths, config.kernel_size)
@@ -209,33 +185,26 @@ class AFN(DenoiserModel):
         state: dict[str, torch.Tensor],
         reset: torch.Tensor,
     ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        color, albedo, normal, depth, motion = frame_inputs(buffers)
-
-        # 1. Demodulation (Lee24 III-A, after Chaitanya17).
-        modulation = albedo + self.cfg.albedo_eps
-        r_1spp = color / modulation
-
-        # 2. Temporal accumulation (Lee24 III-A): r_TA and the blend weight a.
-        r_ta, blend, next_ta, next_geometry = temporal_accumulation(
-            r_1spp, motion, depth, normal, state["ta"], state["geometry"], reset, self._temporal
-        )
+        # 1-2. Demodulation and temporal accumulation (Lee24 III-A): r_1spp, r_TA, weight a.
+        frame = demodulate_and_accumulate(buffers, state, reset, self.cfg)
+        r_1spp, r_ta = frame.irradiance, frame.accumulated
 
         # 3. Network input: tonemapped radiance, features scaled to [0, 1] (Lee24 III-A).
-        depth_01 = depth01(depth, self.cfg.depth_scale)
-        features = torch.cat((albedo, 0.5 * (normal + 1.0), depth_01), dim=1)
+        depth_01 = depth01(frame.depth, self.cfg.depth_scale)
+        features = torch.cat((frame.albedo, 0.5 * (frame.normal + 1.0), depth_01), dim=1)
         net_in = [torch.log1p(r_1spp), torch.log1p(r_ta), features]
         if self.cfg.history_input:
-            net_in.append(blend)
+            net_in.append(frame.blend)
 
         # 4. Multi-scale kernel prediction, Lee24 eq. (1).
         k_1spp, k_ta, alpha = self.predictor(torch.cat(net_in, dim=1))
 
         # 5. Filtering on HDR values, Lee24 eq. (2): 1 spp at 1/2 scale, TA at full scale.
-        d_1spp = ops.kernel_apply(F.avg_pool2d(r_1spp, 2), k_1spp)
-        d_ta = ops.kernel_apply(r_ta, k_ta)
+        d_1spp = kernel_apply(F.avg_pool2d(r_1spp, 2), k_1spp)
+        d_ta = kernel_apply(r_ta, k_ta)
 
         # 6. Adaptive fusion, Lee24 eq. (3).
-        fused = ops.adaptive_fusion(d_ta, d_1spp, alpha)
+        fused = adaptive_fusion(d_ta, d_1spp, alpha)
 
         # 7. Refinement, Lee24 eq. (4), residual in the log1p domain (output >= 0).
         log_fused = torch.log1p(torch.clamp(fused, min=0.0))
@@ -243,8 +212,7 @@ class AFN(DenoiserModel):
         refined = torch.expm1(torch.clamp(log_fused + residual, min=0.0))
 
         # 8. Remodulation.
-        output = refined * modulation
-        return output, {"ta": next_ta, "geometry": next_geometry}
+        return refined * frame.modulation, frame.state
 
 
 def parameter_count(model: nn.Module) -> int:

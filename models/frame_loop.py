@@ -1,0 +1,84 @@
+"""`FrameLoop`: run a model frame after frame the way the runtime executor runs its export.
+
+Per frame: replicate-pad H and W (bottom, right) to the model's `pad_multiple`, run with the
+state carried from the previous frame (zero state and reset = 1 on the first frame, after
+`reset()` and when the frame size changes), crop the output back. Training (clips, with
+gradients), validation, the export check and the benchmarks all use this one loop (after
+Open Image Denoise's `training/infer.py` `Infer.__call__`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Mapping
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .base import DenoiserModel
+
+Frame = Mapping[str, "torch.Tensor | np.ndarray"]
+
+
+def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
+    """Replicate-pad the last two axes of (N, C, H, W) `x` up to multiples of `multiple`."""
+    h, w = x.shape[-2:]
+    ph, pw = (-h) % multiple, (-w) % multiple
+    return F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+
+
+class FrameLoop:
+    """Stateful frame-by-frame driver of a `DenoiserModel` (see the module docstring).
+
+    Frames are dicts name -> (N, C, H, W) tensors, or (C, H, W) tensors / numpy arrays for
+    N = 1; only the model's `inputs` are read. Gradients flow unless the caller disables them.
+    """
+
+    def __init__(self, model: DenoiserModel) -> None:
+        self.model = model
+        self.state: dict[str, torch.Tensor] | None = None
+        self._key: tuple | None = None
+
+    def reset(self) -> None:
+        """Forget the history: the next frame starts from zero state with reset = 1."""
+        self.state = None
+
+    def _tensors(self, frame: Frame) -> dict[str, torch.Tensor]:
+        out = {}
+        for name in self.model.inputs:
+            x = frame[name]
+            x = torch.from_numpy(np.ascontiguousarray(x)) if isinstance(x, np.ndarray) else x
+            out[name] = x if x.dim() == 4 else x.unsqueeze(0)
+        return out
+
+    def __call__(self, frame: Frame, reset: bool = False) -> torch.Tensor:
+        """Denoise one frame; returns (N, 3, H, W) at the frame's own size."""
+        buffers = self._tensors(frame)
+        first = buffers[self.model.inputs[0]]
+        (n, _, h, w), device = first.shape, first.device
+        m = self.model.pad_multiple
+        key = (n, h, w, device)
+        if reset or self.state is None or key != self._key:
+            hp, wp = -(-h // m) * m, -(-w // m) * m
+            self.state = self.model.initial_state(n, hp, wp, device=device)
+            self._key, reset = key, True
+        padded = {k: pad_to_multiple(v, m) for k, v in buffers.items()}
+        flag = torch.tensor(1.0 if reset else 0.0, device=device)
+        output, self.state = self.model(padded, self.state, flag)
+        return output[..., :h, :w]
+
+    def run(self, frames: Iterable[Frame]) -> Iterator[torch.Tensor]:
+        """Outputs of consecutive frames of one sequence (starts a new history)."""
+        self.reset()
+        for frame in frames:
+            yield self(frame)
+
+
+def unroll(model: DenoiserModel, clips: Mapping[str, torch.Tensor]) -> torch.Tensor:
+    """Run `model` over clips (B, T, C, H, W) from a fresh history; returns (B, T, 3, H, W)."""
+    t = next(iter(clips.values())).shape[1]
+    loop = FrameLoop(model)
+    return torch.stack(
+        list(loop.run({name: clip[:, i] for name, clip in clips.items()} for i in range(t))),
+        dim=1,
+    )

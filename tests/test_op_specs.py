@@ -1,0 +1,146 @@
+"""Every op declared in rtdenoise.ops has its three forms, and they agree, checked generically
+from the spec alone (a new op gets these tests without editing this file): torch reference ==
+ONNX function body (ORT portable) == fast kernel (through ORT and called directly) on the spec's
+example inputs for each example shape and attribute set; the ONNX schema, function and fast
+kernel declaration match the spec; the torch custom op's fake gives the real output shapes;
+calls that break the spec fail with a ValueError in the torch and fast forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import pytest
+import torch
+from op_forms import RTOL, all_forms, assert_forms_agree, rel_err
+
+from rtdenoise.export import ops as eops
+from rtdenoise.models.ops import TORCH_OPS, exporting
+from rtdenoise.ops import SPECS, Arg, OpSpec, snake_case
+from rtdenoise.runtime import fastops
+from rtdenoise.runtime.kernels import KERNELS
+
+CASES = [
+    (name, shape, dict(attrs))
+    for name, spec in sorted(SPECS.items())
+    for attrs in spec.attr_sets()
+    for shape in spec.example_shapes
+]
+
+
+def _id(case) -> str:
+    name, shape, attrs = case
+    return f"{name}-{'x'.join(map(str, shape))}-" + "-".join(f"{v}" for v in attrs.values())
+
+
+def test_every_spec_has_all_three_forms():
+    assert SPECS, "no op specs found"
+    assert set(TORCH_OPS) == set(SPECS), "torch forms"
+    assert set(eops.ONNX_FORMS) == set(SPECS), "ONNX function bodies"
+    assert set(KERNELS) == set(SPECS) == set(fastops.FAST_OPS), "fast kernels"
+
+
+@pytest.mark.parametrize("case", CASES, ids=[_id(c) for c in CASES])
+def test_forms_agree_on_example_inputs(case):
+    name, shape, attrs = case
+    spec = SPECS[name]
+    inputs = spec.example_inputs(shape, attrs, np.random.default_rng(sum(shape)))
+    spec.validate_call([x.shape for x in inputs], attrs)
+    outs = all_forms(name, inputs, attrs)
+    assert_forms_agree(outs)
+    expected = spec.output_shapes([x.shape for x in inputs], attrs)[0]
+    assert outs["torch"].shape == tuple(expected)
+
+
+@pytest.mark.parametrize("name", sorted(SPECS))
+def test_onnx_form_matches_spec(name):
+    spec = SPECS[name]
+    form = eops.ONNX_FORMS[name]
+    assert [p.name for p in form.schema.inputs] == list(spec.input_names)
+    assert [p.name for p in form.schema.outputs] == list(spec.output_names)
+    assert sorted(form.schema.attributes) == sorted(spec.attrs)
+    model = eops.single_op_model(name, None, dict(spec.default_attrs))
+    onnx.checker.check_model(model, full_check=True)
+    (func,) = model.functions
+    assert (func.domain, func.name) == ("rtdenoise", name)
+    assert list(func.input) == list(spec.input_names)
+    assert list(func.output) == list(spec.output_names)
+    assert list(func.attribute) == list(spec.attrs)
+    assert all(n.domain in ("", "ai.onnx") for n in func.node)  # standard ops only
+    (node,) = model.graph.node
+    assert {a.name for a in node.attribute} == set(spec.attrs)
+
+
+@pytest.mark.parametrize("name", sorted(SPECS))
+def test_model_without_function_runs_only_with_the_fast_kernel(name):
+    spec = SPECS[name]
+    attrs = dict(spec.default_attrs)
+    inputs = spec.example_inputs(spec.example_shapes[0], attrs, np.random.default_rng(0))
+    model = eops.single_op_model(name, [x.shape for x in inputs], attrs, with_function=False)
+    assert len(model.functions) == 0
+    with pytest.raises(Exception, match=name):
+        ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    so = ort.SessionOptions()
+    fastops.register_fast_kernels(so)
+    sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
+    before = fastops.CALLS[name]
+    outs = sess.run(None, dict(zip(spec.input_names, inputs, strict=True)))
+    assert fastops.CALLS[name] == before + 1 and len(outs) == len(spec.outputs)
+    with torch.no_grad():
+        ref = TORCH_OPS[name].reference(*[torch.from_numpy(x) for x in inputs], **attrs)
+    refs = ref if isinstance(ref, tuple) else (ref,)
+    for out, r in zip(outs, refs, strict=True):
+        assert rel_err(out, r.numpy()) <= RTOL
+
+
+@pytest.mark.parametrize("name", sorted(SPECS))
+def test_custom_op_fake_and_eager_agree_with_reference(name):
+    """The export-mode custom op: its fake (spec shape rule) and its eager values."""
+    spec = SPECS[name]
+    attrs = dict(spec.default_attrs)
+    inputs = spec.example_inputs(spec.example_shapes[0], attrs, np.random.default_rng(1))
+    tensors = [torch.from_numpy(x) for x in inputs]
+    op = TORCH_OPS[name]
+    assert op.overload() is getattr(torch.ops.rtdenoise, snake_case(name)).default
+    with exporting():
+        custom = op(*tensors, **attrs)
+    plain = op(*tensors, **attrs)
+    customs = custom if isinstance(custom, tuple) else (custom,)
+    plains = plain if isinstance(plain, tuple) else (plain,)
+    with torch._subclasses.fake_tensor.FakeTensorMode() as mode:
+        fakes = [mode.from_tensor(t) for t in tensors]
+        fake = op.custom(*fakes, *(attrs[a] for a in spec.attrs))
+    fakes_out = fake if isinstance(fake, tuple) else (fake,)
+    for c, p, f in zip(customs, plains, fakes_out, strict=True):
+        assert torch.allclose(c, p, atol=1e-6)
+        assert tuple(f.shape) == tuple(p.shape)
+
+
+@pytest.mark.parametrize("name", sorted(SPECS))
+def test_calls_that_break_the_spec_are_refused(name):
+    spec = SPECS[name]
+    attrs = dict(spec.default_attrs)
+    inputs = spec.example_inputs(spec.example_shapes[0], attrs, np.random.default_rng(2))
+    squeezed = [inputs[0][0], *inputs[1:]]  # first input one rank short
+    with pytest.raises(ValueError, match=f"{name}: {spec.inputs[0].name} must be"):
+        KERNELS[name](*squeezed, **attrs)
+    with pytest.raises(ValueError, match=f"{name}: {spec.inputs[0].name} must be"):
+        TORCH_OPS[name](*[torch.from_numpy(x) for x in squeezed], **attrs)
+    with pytest.raises(ValueError, match=f"{name} takes {len(spec.inputs)} inputs"):
+        KERNELS[name](*inputs[:-1], **attrs)
+    with pytest.raises(ValueError, match="attributes"):
+        KERNELS[name](*inputs, **attrs, bogus=1)
+
+
+def test_spec_rejects_default_attrs_that_do_not_match():
+    with pytest.raises(ValueError, match="default_attrs"):
+        OpSpec(
+            name="Broken",
+            doc="",
+            inputs=(Arg("x"),),
+            outputs=(Arg("y"),),
+            attrs=("k",),
+            output_shapes=lambda shapes, attrs: [shapes[0]],
+            example_inputs=lambda shape, attrs, rng: [],
+        )
+    assert snake_case("WeightSharingFilter") == "weight_sharing_filter"
