@@ -21,6 +21,8 @@ from torch import nn
 
 from rtdenoise.runtime.contract import BUFFER_CHANNELS, Declaration, StateSpec
 
+from .losses import sequence_loss
+
 __all__ = [
     "BUFFER_CHANNELS",
     "FAMILIES",
@@ -74,13 +76,16 @@ class FamilyConfig:
 class DenoiserModel(nn.Module):
     """Base class of the denoiser families.
 
-    Subclasses set `family`, `config_class`, `inputs` (canonical buffer names they read),
-    `state_specs`, `pad_multiple` and `input_note`, keep their config in `self.cfg`, and
-    implement `forward`.
+    Subclasses set `family`, `config_class`, `example_config`, `inputs` (canonical buffer
+    names they read), `state_specs`, `pad_multiple` and `input_note`, keep their config in
+    `self.cfg`, and implement `forward` (and `loss` when the paper trains with another loss).
     """
 
     family: ClassVar[str] = ""
     config_class: ClassVar[type[FamilyConfig]] = FamilyConfig
+    # A small configuration (dict for config_class.from_dict) that runs fast on a CPU: the
+    # family-wide contract tests (tests/test_families.py) and smoke runs build it.
+    example_config: ClassVar[dict[str, Any]] = {}
     inputs: tuple[str, ...] = ()
     state_specs: tuple[StateSpec, ...] = ()
     pad_multiple: int = 1
@@ -101,6 +106,15 @@ class DenoiserModel(nn.Module):
         Returns (output (N, 3, H, W) linear HDR, next state with the same keys and shapes).
         """
         raise NotImplementedError
+
+    def loss(
+        self, outputs: torch.Tensor, reference: torch.Tensor, temporal_weight: float
+    ) -> torch.Tensor:
+        """Training loss of unrolled clips, outputs and reference (B, T, 3, H, W).
+
+        Default: SMAPE (Lee24 eq. (5)) + temporal_weight * temporal SMAPE (Isik21 eq. (12)).
+        """
+        return sequence_loss(outputs, reference, temporal_weight)
 
     def initial_state(
         self, n: int, h: int, w: int, device: torch.device | str | None = None

@@ -27,7 +27,6 @@ from .base import DenoiserModel
 from .checkpoint import CheckpointError, load_training_state, save_checkpoint
 from .data import ClipSampler, SequenceData, load_sequences
 from .frame_loop import FrameLoop, unroll
-from .losses import sequence_loss
 from .registry import build_model
 
 
@@ -233,7 +232,7 @@ def train(
         while step < s.steps:
             batch = sampler.sample()
             outputs = unroll(model, batch.buffers)
-            loss = sequence_loss(outputs, batch.reference, s.temporal_weight)
+            loss = model.loss(outputs, batch.reference, s.temporal_weight)
             if not torch.isfinite(loss):
                 raise RuntimeError(
                     f"non-finite training loss at step {step + 1}; weights not updated "

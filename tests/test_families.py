@@ -1,6 +1,6 @@
-"""The contract every registered family keeps, checked on each (a new family joins by adding
-its small test config here): shapes and range, reset semantics, gradients, checkpoint round-trip.
-Family-specific behaviour stays in tests/test_<family>_model.py."""
+"""The contract every registered family keeps, checked on each in its `example_config` (a new
+family joins without editing this file): shapes and range, reset semantics, gradients,
+checkpoint round-trip. Family-specific behaviour stays in tests/test_<family>_model.py."""
 
 from __future__ import annotations
 
@@ -9,18 +9,17 @@ import torch
 from model_inputs import random_buffers
 
 from rtdenoise.models.checkpoint import load_checkpoint, save_checkpoint
-from rtdenoise.models.registry import build_model, families
+from rtdenoise.models.registry import build_model, families, family_class
 
-# family -> a small config for fast tests
-SMALL = {
-    "afn": {"widths": [8, 12, 16], "kernel_size": 5, "refine_width": 8},
-    "wskp": {"width": 8},
-}
+# family -> its small config for fast tests
+SMALL = {name: family_class(name).example_config for name in families()}
 N, H, W = 2, 32, 24
 
 
-def test_every_family_is_covered():
-    assert sorted(SMALL) == families()
+def test_families_are_found():
+    assert {"afn", "wskp"} <= set(SMALL)
+    with pytest.raises(ValueError, match="unknown model family 'nope'; known: \\['afn'"):
+        build_model("nope")
 
 
 def _buffers(model, seed: int, n: int = N, h: int = H, w: int = W) -> dict[str, torch.Tensor]:

@@ -227,9 +227,10 @@ def test_cli_trains_validates_and_reports_errors(seq_dir, tmp_path):
 
 
 def test_non_finite_loss_stops_training(seq_dir, tmp_path, monkeypatch):
-    import rtdenoise.models.train as train_module
+    from rtdenoise.models.registry import family_class
 
-    monkeypatch.setattr(train_module, "sequence_loss", lambda *a, **k: torch.tensor(float("nan")))
+    nan = torch.tensor(float("nan"))
+    monkeypatch.setattr(family_class("afn"), "loss", lambda self, *a, **k: nan)
     with pytest.raises(RuntimeError, match="non-finite training loss at step 1"):
         train(
             [seq_dir], tmp_path / "n.pt", model_config=TINY, settings=_settings(2), progress=False

@@ -163,6 +163,7 @@ class AFN(DenoiserModel):
 
     family = "afn"
     config_class = AFNConfig
+    example_config = {"widths": [8, 12, 16], "kernel_size": 5, "refine_width": 8}
     inputs = ACCUMULATION_INPUTS
     state_specs = ACCUMULATION_STATE
     input_note = ACCUMULATION_NOTE

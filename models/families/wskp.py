@@ -126,6 +126,7 @@ class WSKP(DenoiserModel):
 
     family = "wskp"
     config_class = WSKPConfig
+    example_config = {"width": 8}
     inputs = ACCUMULATION_INPUTS
     state_specs = ACCUMULATION_STATE
     pad_multiple = 1
