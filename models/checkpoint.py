@@ -1,4 +1,4 @@
-"""Checkpoints: plain dicts `{"family", "config", "state_dict", "meta"}` (design.md s.4).
+"""Checkpoints: plain dicts `{"family", "config", "state_dict", "meta"}`.
 
 Never a pickled module: files load with `torch.load(weights_only=True)`. Training
 checkpoints carry one more key, `"train"` (optimizer state, step, RNG states) that

@@ -1,9 +1,9 @@
 """Training data: whole sequences in memory -> batches of randomly cropped, flipped clips.
 
-A sequence is a folder in the canonical EXR layout (design.md s.8): `frame_NNNN.exr` and
-`ref_NNNN.exr`. A training sample is a clip of F consecutive frames of one sequence with
-one random crop, flip and brightness factor shared by all its frames (Lee24 IV-B: random
-128 x 128 crops, horizontal / vertical flips, brightness in [0.8, 1.2]).
+A sequence is a folder in the canonical EXR layout (docs/contract.md, "EXR layout"):
+`frame_NNNN.exr` and `ref_NNNN.exr`. A training sample is a clip of F consecutive frames of
+one sequence with one random crop, flip and brightness factor shared by all its frames
+(Lee24 IV-B: random 128 x 128 crops, horizontal / vertical flips, brightness in [0.8, 1.2]).
 
 Flips keep the buffers' meaning: a horizontal flip negates motion.x and normal.x, a
 vertical flip motion.y and normal.y (screen-space conventions: x right, y down for motion).

@@ -4,7 +4,7 @@ Everything here exports to standard ONNX ops (GridSample opset 16+, Where, Reduc
 no Python branching on tensor values, sizes only through tensor shape ops, so it can live
 inside an exported model graph with dynamic H and W.
 
-Conventions (design.md s.3/s.7): motion vectors are in pixels, x right, y down, and point
+Conventions (docs/contract.md, "Buffers"): motion vectors are in pixels, x right, y down, and point
 from the current pixel to its previous position: previous = current + motion. Pixel (x, y)
 has its centre at integer coordinates; sampling is bilinear.
 

@@ -1,4 +1,5 @@
-"""The stateful executor: one ONNX Runtime session driving any contract-v1 model (design.md s.6).
+"""The stateful executor: one ONNX Runtime session driving any contract-v1 model
+(docs/architecture.md, "Runtime"; docs/contract.md).
 
 Per frame: validate the buffers (names, shapes; NaN/Inf replaced by 0 and counted),
 replicate-pad H, W to the model's `pad_multiple`, run, feed `state_next.*` back as

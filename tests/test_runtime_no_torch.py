@@ -1,4 +1,4 @@
-"""rtdenoise.runtime imports and runs a model with torch blocked (design.md s.1)."""
+"""rtdenoise.runtime imports and runs a model with torch blocked (docs/architecture.md)."""
 
 from __future__ import annotations
 
