@@ -17,7 +17,7 @@ H, W = 48, 64
 
 
 def canonical_channels(rng: np.random.Generator, h: int = H, w: int = W) -> dict[str, np.ndarray]:
-    """All canonical channels (design.md s.8) with random values."""
+    """All canonical channels (docs/contract.md) with random values."""
     names = ["R", "G", "B"] + [f"colorB.{c}" for c in "RGB"] + [f"albedo.{c}" for c in "RGB"]
     names += [f"normal.{c}" for c in "XYZ"] + ["depth.Z", "motion.X", "motion.Y"]
     return {n: rng.random((h, w), dtype=np.float32) * 4 - 1 for n in names}
@@ -138,3 +138,38 @@ def test_truncated_multipart_is_an_error(tmp_path):
     path.write_bytes(data[: int(len(data) * 0.8)])
     with pytest.raises(InputError, match=r"m\.exr: cannot read EXR \(truncated or corrupt"):
         read_exr(path)
+
+
+def test_read_exr_subset_converts_only_the_channels_asked_for(tmp_path):
+    rng = np.random.default_rng(5)
+    ch = canonical_channels(rng)
+    path = write_exr(tmp_path / "h.exr", ch)  # half floats
+    got = read_exr(path, ["G", "depth.Z"])
+    assert list(got) == ["G", "depth.Z"] and all(a.dtype == np.float32 for a in got.values())
+    np.testing.assert_array_equal(got["G"], ch["G"].astype(np.float16).astype(np.float32))
+    raw = read_exr(path, ["R"], dtype=None)  # the file's own type, for converting while stacking
+    assert raw["R"].dtype == np.float16 and raw["R"].flags.c_contiguous
+    with pytest.raises(InputError, match=r"h\.exr: no channel 'albedo\.A'; channels present: B, G"):
+        read_exr(path, ["R", "albedo.A"])
+
+
+def test_subset_of_a_truncated_multipart_file(tmp_path):
+    """A part dropped by OpenEXR is an error when a channel asked for was in it."""
+    import OpenEXR
+
+    rng = np.random.default_rng(6)
+    parts = [
+        OpenEXR.Part(
+            {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+            {f"VL.P{i}.{c}": rng.random((32, 32), dtype=np.float32) for c in "RGB"},
+            name=f"VL.P{i}",
+        )
+        for i in range(3)
+    ]
+    path = tmp_path / "m.exr"
+    OpenEXR.File(parts).write(str(path))
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * 0.8)])  # the last part loses its pixels
+    with pytest.raises(InputError, match=r"m\.exr: cannot read EXR \(truncated .* 'VL\.P2\.G'"):
+        read_exr(path, ["VL.P0.R", "VL.P2.G"])
+
