@@ -1,8 +1,7 @@
-"""The stateful executor: one ONNX Runtime session driving any contract-v1 model.
+"""The stateful executor: one ONNX Runtime session driving any contract-v1 model
+(docs/architecture.md, "Runtime"; docs/contract.md).
 
-The contract (inputs, state, outputs) is docs/contract.md; the layers, docs/architecture.md.
-Per frame: validate the buffers (names, shapes; NaN/Inf replaced by 0 and counted, unless the
-caller vouches for them with `assume_finite=True`),
+Per frame: validate the buffers (names, shapes; NaN/Inf replaced by 0 and counted),
 replicate-pad H, W to the model's `pad_multiple`, run, feed `state_next.*` back as
 `state.*`, crop the output. State is zero-filled and `reset` = 1 on the first frame,
 after `reset()` and when the resolution changes.
@@ -11,6 +10,10 @@ State lives in two ping-pong buffers per tensor bound through ONNX Runtime's IO
 binding: frame t reads buffer A and writes buffer B, frame t+1 the reverse. With a
 GPU execution provider the buffers are device memory, so state never crosses to the
 host; on CPU they are numpy arrays the session reads and writes in place.
+
+A caller whose buffers are already free of NaN/Inf (a `Frame` from `read_frame`, which
+replaced and counted them) says so with `process(..., assume_finite=True)`, which skips the
+scan; the default scans every frame.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ A *layout* names, for every canonical buffer (docs/contract.md), the EXR layers 
 may come from, tried in order, and a conversion to the canonical conventions
 applied after reading. Two layouts ship:
 
-- ``canonical`` (docs/contract.md): ``R,G,B`` (noisy colour), ``colorB.R/G/B``,
+- ``canonical`` (docs/contract.md, "Buffers"): ``R,G,B`` (noisy colour), ``colorB.R/G/B``,
   ``albedo.R/G/B``, ``normal.X/Y/Z``, ``depth.Z``, ``motion.X/Y``; no conversion.
 - ``blender`` (Cycles multilayer, any view-layer prefix): ``Noisy Image`` (else
   ``Combined``), ``Denoising Albedo`` (clamped to [0, 1]), ``Denoising Normal``

@@ -23,7 +23,7 @@ H, W = 48, 64
 
 
 def canonical_channels(rng: np.random.Generator, h: int = H, w: int = W) -> dict[str, np.ndarray]:
-    """All canonical channels (docs/contract.md) with random values."""
+    """All canonical channels (docs/contract.md, "EXR layout") with random values."""
     names = ["R", "G", "B"] + [f"colorB.{c}" for c in "RGB"] + [f"albedo.{c}" for c in "RGB"]
     names += [f"normal.{c}" for c in "XYZ"] + ["depth.Z", "motion.X", "motion.Y"]
     return {n: rng.random((h, w), dtype=np.float32) * 4 - 1 for n in names}
