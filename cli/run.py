@@ -8,9 +8,6 @@ and the noisy input against references when there are any.
 
 from __future__ import annotations
 
-import statistics
-import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -25,24 +22,12 @@ from rtdenoise.runtime.backend import Backend, load_backend
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
 from rtdenoise.runtime.memory import tune_allocator
-from rtdenoise.runtime.metrics import SequenceMetrics
-from rtdenoise.runtime.preview import write_png
-from rtdenoise.runtime.sequence import (
-    as_written,
-    find_frames,
-    match_references,
-    read_frame,
-    read_reference,
-    scan_reference,
-    scan_sequence,
-    write_output,
-)
+from rtdenoise.runtime.run import METRIC_KEYS, Job, check_out_dir, run_sequence
+from rtdenoise.runtime.sequence import find_frames
 
 # The model used when --model is not given: the shipped AFN demo (Lee24).
 DEFAULT_MODEL = "demo:afn"
-METRIC_KEYS = ("psnr", "ssim", "smape", "relmse")
 TABLE_MAX_FRAMES = 12  # per-frame rows up to this many frames, else only the mean
-MAX_WARNINGS = 10
 
 _LAYOUT_HELP = "; ".join(f"**{name}**: {lay.description}" for name, lay in LAYOUTS.items())
 
@@ -54,76 +39,23 @@ app = typer.Typer(
 )
 
 
-@dataclass
-class Job:
-    """One sequence to denoise."""
-
-    name: str
-    frames: list[Path]
-    reference: str | None  # reference spec, None = ref_NNNN.exr beside each frame
-    out_dir: Path
-
-
-def _check_out_dir(out_dir: Path) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"{out_dir}: output folder is a file")
-
-
-def _plan_outputs(job: Job, references: list[Path | None], preview: bool) -> list[Path]:
-    """OUT/<input name> for every frame; refuse duplicates and overwriting an input."""
-    outputs = [job.out_dir / p.name for p in job.frames]
-    seen: dict[Path, Path] = {}
-    inputs = {p.resolve() for p in job.frames} | {r.resolve() for r in references if r}
-    for src, out in zip(job.frames, outputs, strict=True):
-        if out in seen:
-            raise InputError(f"{src} and {seen[out]} would both be written to {out}")
-        seen[out] = src
-        targets = [out] + ([out.with_suffix(".png")] if preview else [])
-        for t in targets:
-            if t.resolve() in inputs:
-                raise InputError(f"{t}: writing the output would overwrite an input file")
-    return outputs
-
-
 def _format(value: float | None, key: str) -> str:
     if value is None or not np.isfinite(value):
         return "inf" if value is not None and value > 0 else "-"
     return f"{value:.2f}" if key == "psnr" else f"{value:.4f}"
 
 
-def run_sequence(
+def run_with_progress(
     job: Job,
     backend: Backend,
     layout: Layout,
     overrides: dict[str, str],
     *,
-    half: bool = True,
-    preview: bool = False,
-    err: Console | None = None,
+    half: bool,
+    preview: bool,
+    err: Console,
 ) -> dict[str, Any]:
-    """Denoise one sequence; returns its report (the metrics JSON of one sequence)."""
-    err = err or Console(stderr=True)
-    _check_out_dir(job.out_dir)
-    with quiet_native_output():
-        size = scan_sequence(job.frames, layout, overrides)
-    references = match_references(job.frames, job.reference)
-    if job.reference is not None and not any(references):
-        raise InputError(f"{job.reference}: no reference matches the frame numbers of {job.name}")
-    missing_refs = sum(r is None for r in references)
-    if any(references) and missing_refs:
-        warn(f"{job.name}: {missing_refs} of {len(job.frames)} frames have no reference")
-    with quiet_native_output():
-        for ref in references:
-            if ref is not None:
-                scan_reference(ref, layout, expect_size=size)
-    outputs = _plan_outputs(job, references, preview)
-    required = tuple(getattr(backend, "required_buffers", ()) or ())
-
-    scored_out, scored_in = SequenceMetrics(), SequenceMetrics()
-    rows: list[dict[str, Any]] = []
-    times: dict[str, list[float]] = {"read": [], "denoise": [], "write": []}
-    warnings = 0
-    backend.reset()
+    """`run_sequence` with a progress bar on a terminal and warnings on stderr."""
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -136,88 +68,22 @@ def run_sequence(
     )
     with progress:
         task = progress.add_task(job.name, total=len(job.frames))
-        previous_scored = False
-        for i, (path, ref, out_path) in enumerate(
-            zip(job.frames, references, outputs, strict=True)
-        ):
-            t0 = time.perf_counter()
-            with quiet_native_output():
-                frame = read_frame(path, layout, overrides, expect_size=size, index=i)
-            if i == 0:
-                lacking = [b for b in required if b not in frame.buffers]
-                if lacking:
-                    raise InputError(
-                        f"{path}: the model needs buffer {', '.join(map(repr, lacking))}, which "
-                        f"layout {layout.name} did not find (use --channel BUFFER=LAYER)"
-                    )
-            t1 = time.perf_counter()
-            out = np.asarray(backend.process(frame.buffers), dtype=np.float32)
-            if out.ndim == 4 and out.shape[0] == 1:
-                out = out[0]
-            if out.shape != (3, *size):
-                raise RuntimeError(
-                    f"{path}: the model returned shape {out.shape}, not (3, *{size})"
-                )
-            bad_out = int((~np.isfinite(out)).any(axis=0).sum())
-            if bad_out:
-                out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
-            t2 = time.perf_counter()
-            write_output(out_path, out, half=half)
-            if preview:
-                write_png(out_path.with_suffix(".png"), out)
-            t3 = time.perf_counter()
-            for key, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2), strict=True):
-                times[key].append(dt * 1e3)
 
-            if frame.nonfinite or bad_out:
-                warnings += 1
-                if warnings <= MAX_WARNINGS:
-                    parts = []
-                    if frame.nonfinite:
-                        parts.append(
-                            f"{frame.nonfinite} pixels with NaN/Inf in "
-                            f"{', '.join(frame.nonfinite_buffers)} replaced by 0"
-                        )
-                    if bad_out:
-                        parts.append(f"{bad_out} non-finite output pixels replaced by 0")
-                    warn(f"{path}: " + "; ".join(parts))
-            row: dict[str, Any] = {
-                "index": frame.index,
-                "file": str(path),
-                "output": str(out_path),
-                "reference": str(ref) if ref else None,
-                "nonfinite": frame.nonfinite,
-            }
-            if ref is not None:
-                with quiet_native_output():
-                    target = read_reference(ref, layout, expect_size=size)
-                # Score what was written: the half-float file when --half.
-                written = as_written(out, half)
-                row.update(scored_out.add(written, target, consecutive=previous_scored))
-                row["input"] = scored_in.add(
-                    frame.buffers["color"], target, consecutive=previous_scored
-                )
-            else:
-                row.update(dict.fromkeys(METRIC_KEYS))
-                row["input"] = None
-            previous_scored = ref is not None
-            rows.append(row)
+        def advance() -> None:
             progress.advance(task)
             progress.refresh()
-    if warnings > MAX_WARNINGS:
-        warn(f"{job.name}: {warnings - MAX_WARNINGS} more frames had NaN/Inf values")
 
-    out_summary, in_summary = scored_out.summary(), scored_in.summary()
-    return {
-        "name": job.name,
-        "size": list(size),
-        "frames": rows,
-        "mean": {k: out_summary[k] for k in METRIC_KEYS} if out_summary else None,
-        "trmae": out_summary.get("trmae"),
-        "input": in_summary or None,
-        "nonfinite": sum(r["nonfinite"] for r in rows),
-        "timing_ms": {k: statistics.median(v) if v else None for k, v in times.items()},
-    }
+        return run_sequence(
+            job,
+            backend,
+            layout,
+            overrides,
+            half=half,
+            preview=preview,
+            on_frame=advance,
+            on_warning=warn,
+            reading=quiet_native_output,
+        )
 
 
 def print_report(report: dict[str, Any], model: str, console: Console) -> None:
@@ -370,14 +236,16 @@ def run(
             raise InputError("missing option -o/--output (the output folder)")
         overrides = parse_overrides(channel)
         lay = get_layout(layout)
-        _check_out_dir(output)
+        check_out_dir(output)
         if metrics_json is not None and metrics_json.is_dir():
             raise InputError(f"{metrics_json}: --metrics-json is a folder, expected a file path")
         jobs, is_demo = _jobs(list(inputs or []), output, reference, demo)
         backend = load_backend(model, portable=portable, threads=threads)
         reports = []
         for job in jobs:
-            report = run_sequence(job, backend, lay, overrides, half=half, preview=preview, err=err)
+            report = run_with_progress(
+                job, backend, lay, overrides, half=half, preview=preview, err=err
+            )
             print_report(report, model, out)
             reports.append(report)
         if len(reports) > 1:
@@ -411,4 +279,4 @@ def main() -> None:
     app()
 
 
-__all__ = ["DEFAULT_MODEL", "Job", "app", "main", "print_report", "run_sequence"]
+__all__ = ["DEFAULT_MODEL", "app", "main", "print_report", "run_with_progress"]

@@ -17,10 +17,20 @@ from .errors import InputError
 
 @runtime_checkable
 class Backend(Protocol):
-    """One stateful denoiser: frames in order, `reset()` at a cut."""
+    """One stateful denoiser: frames in order, `reset()` at a cut.
 
-    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Denoise one frame: canonical (C, H, W) buffers -> (3, H, W) linear RGB."""
+    A backend may also list `required_buffers` (names): `run_sequence` then reads only
+    those (and `color`); without it, every buffer the layout finds.
+    """
+
+    def process(
+        self, buffers: Mapping[str, np.ndarray], *, assume_finite: bool = False
+    ) -> np.ndarray:
+        """Denoise one frame: canonical (C, H, W) buffers -> (3, H, W) linear RGB.
+
+        assume_finite: the caller has already replaced NaN/Inf in `buffers` (a `Frame` from
+        `read_frame` / `SequencePlan.read`), so the backend may skip its own scan.
+        """
         ...
 
     def reset(self) -> None:
@@ -34,7 +44,10 @@ class PassThrough:
     name = "none"
     required_buffers: tuple[str, ...] = ("color",)
 
-    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
+    def process(
+        self, buffers: Mapping[str, np.ndarray], *, assume_finite: bool = False
+    ) -> np.ndarray:
+        """A copy of `color`, NaN/Inf included (there is no model to protect)."""
         if "color" not in buffers:
             raise InputError("pass-through needs the 'color' buffer")
         return np.array(buffers["color"], dtype=np.float32, copy=True)

@@ -10,6 +10,10 @@ State lives in two ping-pong buffers per tensor bound through ONNX Runtime's IO
 binding: frame t reads buffer A and writes buffer B, frame t+1 the reverse. With a
 GPU execution provider the buffers are device memory, so state never crosses to the
 host; on CPU they are numpy arrays the session reads and writes in place.
+
+A caller whose buffers are already free of NaN/Inf (a `Frame` from `read_frame`, which
+replaced and counted them) says so with `process(..., assume_finite=True)`, which skips the
+scan; the default scans every frame.
 """
 
 from __future__ import annotations
@@ -293,13 +297,23 @@ class Denoiser:
         """Forget the history: the next frame starts from zero state with reset = 1."""
         self._pending_reset = True
 
-    def process(self, buffers: Mapping[str, np.ndarray], *, reset: bool = False) -> np.ndarray:
+    def process(
+        self,
+        buffers: Mapping[str, np.ndarray],
+        *,
+        reset: bool = False,
+        assume_finite: bool = False,
+    ) -> np.ndarray:
         """Denoise one frame. buffers: name -> (C, H, W) or (1, C, H, W) float32.
 
         Extra buffers are ignored. `reset=True` marks a camera cut. Returns (3, H, W) float32.
+        NaN/Inf input values are replaced by 0 (in a copy) and counted in `last_nonfinite`.
+        assume_finite: the caller guarantees the buffers hold no NaN/Inf (e.g. they come from
+            `read_frame`, which already replaced and counted them): skips that scan, one pass
+            over every buffer. Non-finite values given with it reach the model.
         """
         start = time.perf_counter()
-        feeds, (h, w), (hp, wp) = self._prepare(buffers)
+        feeds, (h, w), (hp, wp) = self._prepare(buffers, assume_finite)
         if reset or (h, w) != self._size:
             self._pending_reset = True
         if self._pending_reset:
@@ -326,9 +340,9 @@ class Denoiser:
         return result
 
     def _prepare(
-        self, buffers: Mapping[str, np.ndarray]
+        self, buffers: Mapping[str, np.ndarray], assume_finite: bool = False
     ) -> tuple[dict[str, np.ndarray], tuple[int, int], tuple[int, int]]:
-        """Validate, sanitize and pad the buffers the model reads."""
+        """Validate, sanitize (unless `assume_finite`) and pad the buffers the model reads."""
         if not isinstance(buffers, Mapping):
             raise InputError(f"process() takes a dict name -> array, got {type(buffers).__name__}")
         specs = self._contract.buffers
@@ -365,7 +379,7 @@ class Denoiser:
         for name, a in arrays.items():
             original = np.asarray(buffers[name])
             a32 = np.ascontiguousarray(a, dtype=np.float32)
-            bad = _count_nonfinite(a32)
+            bad = 0 if assume_finite else _count_nonfinite(a32)
             feed = _pad_edge(a32, hp, wp)
             if bad:
                 if np.may_share_memory(feed, original):

@@ -29,7 +29,7 @@ conversion still applies (the layout states the file's conventions).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -216,12 +216,17 @@ def resolve_channels(
     layout: Layout | str = "canonical",
     overrides: Mapping[str, str] | None = None,
     source: str = "<file>",
+    *,
+    buffers: Collection[str] | None = None,
+    required: Collection[str] = (),
 ) -> dict[str, list[str]]:
     """Map each canonical buffer found in a file to its EXR channel names (in order).
 
-    Buffers absent from the file are left out, except required ones (`color` and every
-    overridden buffer), which raise InputError naming `source`, the missing channels and
-    the channels present.
+    Buffers absent from the file are left out, except required ones (`color`, every
+    overridden buffer and those in `required`), which raise InputError naming `source`,
+    the missing channels and the channels present.
+    buffers: resolve only these buffers, the required ones and the overridden ones (None:
+        every canonical buffer), so that a layer nobody reads cannot fail the file.
     """
     layout = get_layout(layout) if isinstance(layout, str) else layout
     overrides = dict(overrides or {})
@@ -232,7 +237,9 @@ def resolve_channels(
         value = overrides.get(buf)
         if value is not None and value.lower() == "none":
             continue
-        required = buf in layout.required or value is not None
+        required_here = buf in layout.required or value is not None or buf in required
+        if not required_here and buffers is not None and buf not in buffers:
+            continue
         if value is not None and "," in value:
             names = [v.strip() for v in value.split(",")]
             missing = [n for n in names if n not in present]
@@ -252,7 +259,7 @@ def resolve_channels(
                 break
             partial = partial or missing
         else:
-            if partial or (required and layers):
+            if partial or (required_here and layers):
                 if not partial:
                     comps = COMPONENT_SETS[nch][0]
                     partial = [".".join(p for p in (layers[0], c) if p) for c in comps]
@@ -261,22 +268,40 @@ def resolve_channels(
                     f"(layout {layout.name}{_suggest(layout, buf, present, by_suffix)}); "
                     f"channels present: {_list_names(present)}"
                 )
-            if required:
+            if required_here:
                 raise InputError(f"{source}: layout {layout.name} has no source for {buf!r}")
     return result
 
 
-def extract_buffers(
+def check_channels(
+    channel_names: Iterable[str],
+    mapping: Mapping[str, Sequence[str]],
+    layout: Layout,
+    source: str = "<file>",
+) -> None:
+    """InputError naming `source`, the buffer and its missing channels when a file lacks a
+    channel of `mapping` (a mapping resolved from another file of the same sequence)."""
+    present = set(channel_names)
+    for buf, names in mapping.items():
+        missing = [n for n in names if n not in present]
+        if missing:
+            raise InputError(
+                f"{source}: missing channel {', '.join(missing)} for buffer {buf!r} "
+                f"(layout {layout.name}, as the sequence's first frame has it); "
+                f"channels present: {_list_names(present)}"
+            )
+
+
+def stack_buffers(
     channels: Mapping[str, np.ndarray],
-    layout: Layout | str = "canonical",
-    overrides: Mapping[str, str] | None = None,
+    mapping: Mapping[str, Sequence[str]],
     source: str = "<file>",
 ) -> Buffers:
-    """Stack a file's channels into canonical (C, H, W) float32 buffers (no conversion).
+    """Stack the mapped channels into (C, H, W) float32 buffers (no conversion).
 
+    One copy per buffer, converting from the file's type (e.g. float16) on the way.
     Raises InputError when the selected channels differ in size.
     """
-    mapping = resolve_channels(channels.keys(), layout, overrides, source)
     buffers: Buffers = {}
     first: str | None = None
     for buf, names in mapping.items():
@@ -288,5 +313,24 @@ def extract_buffers(
                 raise InputError(
                     f"{source}: channel {name!r} is {w}x{h} but channel {first!r} is {w0}x{h0}"
                 )
-        buffers[buf] = np.stack([np.asarray(channels[n], dtype=np.float32) for n in names])
+        buffers[buf] = np.stack([channels[n] for n in names], dtype=np.float32)
     return buffers
+
+
+def extract_buffers(
+    channels: Mapping[str, np.ndarray],
+    layout: Layout | str = "canonical",
+    overrides: Mapping[str, str] | None = None,
+    source: str = "<file>",
+    *,
+    buffers: Collection[str] | None = None,
+) -> Buffers:
+    """Stack a file's channels into canonical (C, H, W) float32 buffers (no conversion).
+
+    buffers: only these (and `color`, always required); None: every buffer the file has.
+    Raises InputError when the selected channels differ in size.
+    """
+    mapping = resolve_channels(channels.keys(), layout, overrides, source, buffers=buffers)
+    if buffers is not None:
+        mapping = {b: names for b, names in mapping.items() if b in buffers or b == "color"}
+    return stack_buffers(channels, mapping, source)

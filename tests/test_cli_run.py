@@ -10,9 +10,11 @@ import OpenEXR
 import pytest
 from typer.testing import CliRunner
 
+import rtdenoise.runtime.sequence as sequence
 from rtdenoise.cli.run import DEFAULT_MODEL, app
 from rtdenoise.runtime import metrics
 from rtdenoise.runtime.exr import read_exr, write_exr
+from rtdenoise.runtime.preview import encode_png, to_uint8
 
 H, W = 64, 64
 runner = CliRunner()
@@ -317,3 +319,103 @@ def test_onnx_model_with_state_through_the_cli(tmp_path, monkeypatch):
     res = invoke(seqs[0], "-o", tmp_path / "o2", "--model", model, "--channel", "albedo=none")
     assert res.exit_code == 2 and "the model needs buffer 'albedo'" in res.stderr
     assert not (tmp_path / "o2").exists()
+
+
+@pytest.mark.parametrize("half", [True, False])
+def test_metrics_are_those_of_the_written_file(tmp_path, half):
+    """The scored (and previewed) array is exactly the one in the output file: re-reading
+    the outputs gives the JSON's metrics bit for bit, clamped half-range values included."""
+    seq, out = tmp_path / "seq", tmp_path / "out"
+    seq.mkdir()
+    colors, refs = make_sequence(seq, n=3)
+    ch = read_exr(seq / "frame_0002.exr")
+    ch["G"][1, 2], ch["B"][5, 6] = 1e6, 70000.0  # beyond half range: stored as 65504
+    write_exr(seq / "frame_0002.exr", ch, half=False)
+    js = tmp_path / "m.json"
+    res = invoke(seq, "-o", out, "--metrics-json", js, "--preview", "--half" if half else "--float")
+    assert res.exit_code == 0, res.output
+    data = json.loads(js.read_text())
+    written = [rgb(out / f"frame_{k:04d}.exr") for k in (1, 2, 3)]
+    assert written[1][1, 1, 2] == (65504.0 if half else 1e6)
+    expected = metrics.SequenceMetrics()
+    for row, w, ref, k in zip(data["frames"], written, refs, (1, 2, 3), strict=True):
+        got = expected.add(w, ref)
+        assert {key: row[key] for key in got} == got
+        assert (out / f"frame_{k:04d}.png").read_bytes() == encode_png(to_uint8(w))
+    summary = expected.summary()
+    assert data["mean"] == {key: summary[key] for key in ("psnr", "ssim", "smape", "relmse")}
+    assert data["trmae"] == summary["trmae"]
+
+
+def _with_albedo(seq, k, albedo):
+    """Replace frame k's albedo layer: None drops it, else an (h, w) array (another part)."""
+    ch = read_exr(seq / f"frame_{k:04d}.exr")
+    for c in "RGB":
+        del ch[f"albedo.{c}"]
+    path = seq / f"frame_{k:04d}.exr"
+    if albedo is None:
+        write_exr(path, ch, half=False)
+        return
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    windows = [((0, 0), (W - 1, H - 1)), ((0, 0), (albedo.shape[1] - 1, albedo.shape[0] - 1))]
+    parts = []
+    for i, (chans, win) in enumerate(
+        zip([ch, {f"albedo.{c}": albedo for c in "RGB"}], windows, strict=True)
+    ):
+        hdr = header | {
+            "displayWindow": tuple(np.array(v, np.int32) for v in windows[0]),
+            "dataWindow": tuple(np.array(v, np.int32) for v in win),
+        }
+        parts.append(OpenEXR.Part(hdr, chans, name=f"p{i}"))
+    OpenEXR.File(parts).write(str(path))
+
+
+@pytest.mark.parametrize("albedo", ["absent", "wrong size"])
+def test_only_the_buffers_the_model_needs_are_read(tmp_path, albedo):
+    """An unused layer may be absent or of another size; a needed one is an error naming
+    the file and the channel, before any output is written."""
+    from contract_models import ema_model
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    make_sequence(seq, n=3)
+    _with_albedo(seq, 2, None if albedo == "absent" else np.ones((H + 2, W), np.float32))
+    res = invoke(seq, "-o", tmp_path / "none")  # pass-through needs only color
+    assert res.exit_code == 0, res.output
+    assert len(list((tmp_path / "none").glob("*.exr"))) == 3
+    model = tmp_path / "ema.onnx"  # needs color and albedo
+    model.write_bytes(ema_model())
+    res = invoke(seq, "-o", tmp_path / "ema", "--model", model)
+    assert res.exit_code == 2
+    expected = {
+        "absent": "missing channel albedo.R, albedo.G, albedo.B for buffer 'albedo'",
+        "wrong size": "channel 'albedo.R' is 64x66 but channel 'R' is 64x64",
+    }[albedo]
+    expected = f"{seq / 'frame_0002.exr'}: {expected}"
+    assert expected in res.stderr and res.stderr.count("\n") == 1, res.stderr
+    assert not (tmp_path / "ema").exists()
+
+
+def test_channels_resolved_once_per_sequence(tmp_path, monkeypatch):
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    make_sequence(seq, n=4)
+    resolves, reads = [], []
+    real_resolve, real_read = sequence.resolve_channels, sequence.read_exr
+
+    def resolve(*args, **kwargs):
+        resolves.append(args[-1] if len(args) > 3 else kwargs.get("source"))
+        return real_resolve(*args, **kwargs)
+
+    def read(path, channels=None, **kwargs):
+        reads.append((path.name, channels))
+        return real_read(path, channels, **kwargs)
+
+    monkeypatch.setattr(sequence, "resolve_channels", resolve)
+    monkeypatch.setattr(sequence, "read_exr", read)
+    res = invoke(seq, "-o", tmp_path / "out")
+    assert res.exit_code == 0, res.output
+    assert resolves == [str(seq / "frame_0001.exr")]  # once, from the first frame's header
+    frames = [r for r in reads if r[0].startswith("frame_")]
+    assert frames == [(f"frame_{k:04d}.exr", ["R", "G", "B"]) for k in (1, 2, 3, 4)]
+    assert all(c == list("RGB") for name, c in reads if name.startswith("ref_"))

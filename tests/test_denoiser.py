@@ -145,6 +145,24 @@ def test_nonfinite_inputs_replaced_and_counted(ema: bytes, io_binding: bool) -> 
     assert np.isnan(bad[0, 0, 0])  # the caller's array is untouched
 
 
+def test_assume_finite_skips_the_input_scan(ema: bytes) -> None:
+    """For input already sanitised (read_frame's): same result, no second NaN/Inf pass. It is
+    the caller's promise: a NaN given anyway is neither counted nor replaced."""
+    checked, trusting = (Denoiser(ema, fast_kernels=False) for _ in range(2))
+    colors, albedos = frames(3, 16, 16), frames(3, 16, 16, 1)
+    for color, albedo in zip(colors, albedos, strict=True):
+        a = checked.process({"color": color, "albedo": albedo})
+        b = trusting.process({"color": color, "albedo": albedo}, assume_finite=True)
+        np.testing.assert_array_equal(a, b)
+    bad = colors[0].copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.warns(RuntimeWarning, match="NaN/Inf state"):  # it reached the model
+        out = trusting.process({"color": bad, "albedo": albedos[0]}, assume_finite=True)
+    assert trusting.last_nonfinite == 0 and np.isnan(out[0, 0, 0])
+    out = checked.process({"color": bad, "albedo": albedos[0]})  # the default still sanitises
+    assert checked.last_nonfinite == 1 and np.isfinite(out).all()
+
+
 @pytest.mark.parametrize("io_binding", [True, False])
 def test_nonfinite_state_replaced(probe: bytes, io_binding: bool) -> None:
     den = Denoiser(probe, fast_kernels=False, io_binding=io_binding)

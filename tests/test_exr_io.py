@@ -11,7 +11,13 @@ import pytest
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.exr import read_exr, read_exr_header, write_exr
 from rtdenoise.runtime.preview import encode_png, to_uint8, write_png
-from rtdenoise.runtime.sequence import read_frame, read_reference, write_output
+from rtdenoise.runtime.sequence import (
+    as_written,
+    quantize_output,
+    read_frame,
+    read_reference,
+    write_output,
+)
 
 H, W = 48, 64
 
@@ -138,3 +144,52 @@ def test_truncated_multipart_is_an_error(tmp_path):
     path.write_bytes(data[: int(len(data) * 0.8)])
     with pytest.raises(InputError, match=r"m\.exr: cannot read EXR \(truncated or corrupt"):
         read_exr(path)
+
+
+def test_read_exr_subset_converts_only_the_channels_asked_for(tmp_path):
+    rng = np.random.default_rng(5)
+    ch = canonical_channels(rng)
+    path = write_exr(tmp_path / "h.exr", ch)  # half floats
+    got = read_exr(path, ["G", "depth.Z"])
+    assert list(got) == ["G", "depth.Z"] and all(a.dtype == np.float32 for a in got.values())
+    np.testing.assert_array_equal(got["G"], ch["G"].astype(np.float16).astype(np.float32))
+    raw = read_exr(path, ["R"], dtype=None)  # the file's own type, for converting while stacking
+    assert raw["R"].dtype == np.float16 and raw["R"].flags.c_contiguous
+    with pytest.raises(InputError, match=r"h\.exr: no channel 'albedo\.A'; channels present: B, G"):
+        read_exr(path, ["R", "albedo.A"])
+
+
+def test_subset_of_a_truncated_multipart_file(tmp_path):
+    """A part dropped by OpenEXR is an error when a channel asked for was in it."""
+    import OpenEXR
+
+    rng = np.random.default_rng(6)
+    parts = [
+        OpenEXR.Part(
+            {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
+            {f"VL.P{i}.{c}": rng.random((32, 32), dtype=np.float32) for c in "RGB"},
+            name=f"VL.P{i}",
+        )
+        for i in range(3)
+    ]
+    path = tmp_path / "m.exr"
+    OpenEXR.File(parts).write(str(path))
+    data = path.read_bytes()
+    path.write_bytes(data[: int(len(data) * 0.8)])  # the last part loses its pixels
+    with pytest.raises(InputError, match=r"m\.exr: cannot read EXR \(truncated .* 'VL\.P2\.G'"):
+        read_exr(path, ["VL.P0.R", "VL.P2.G"])
+
+
+def test_quantize_once_half_and_float(tmp_path):
+    rgb = np.random.default_rng(7).normal(0, 3e4, (3, 8, 9)).astype(np.float32)
+    rgb[0, 0, 0], rgb[1, 0, 0] = 1e6, -1e6
+    q = quantize_output(rgb)
+    assert q.dtype == np.float16 and q.flags.c_contiguous and np.isfinite(q).all()
+    assert (q[0, 0, 0], q[1, 0, 0]) == (65504, -65504)
+    np.testing.assert_array_equal(q, np.clip(rgb, -65504, 65504).astype(np.float16))
+    np.testing.assert_array_equal(as_written(rgb), q.astype(np.float32))
+    assert quantize_output(rgb, half=False) is rgb  # float32 contiguous: no copy
+    write_output(tmp_path / "o.exr", rgb)
+    ch = read_exr(tmp_path / "o.exr", dtype=None)
+    assert ch["R"].dtype == np.float16
+    np.testing.assert_array_equal(np.stack([ch[c] for c in "RGB"]), q)

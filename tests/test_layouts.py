@@ -10,10 +10,12 @@ import pytest
 
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import (
+    check_channels,
     extract_buffers,
     get_layout,
     parse_overrides,
     resolve_channels,
+    stack_buffers,
 )
 from rtdenoise.runtime.sequence import read_frame
 
@@ -173,3 +175,32 @@ def test_unknown_layout_and_size_mismatch():
     ch = {"R": _chan(1), "G": _chan(1), "B": np.ones((3, 3), np.float32)}
     with pytest.raises(InputError, match="channel 'B' is 3x3 but channel 'R' is 8x6"):
         extract_buffers(ch, "canonical")
+
+
+def test_resolve_only_the_buffers_asked_for():
+    ch = {c: _chan(1) for c in "RGB"} | {"albedo.R": _chan(0), "depth.Z": _chan(2)}
+    with pytest.raises(InputError, match="missing channel albedo.G, albedo.B"):
+        resolve_channels(ch, "canonical")  # a partial layer fails the file...
+    # ...unless nobody reads it; color is always resolved, overridden buffers too
+    assert resolve_channels(ch, "canonical", buffers=()) == {"color": ["R", "G", "B"]}
+    got = resolve_channels(ch, "canonical", {"motion": "depth.Z,R"}, buffers=("depth",))
+    assert got == {"color": ["R", "G", "B"], "depth": ["depth.Z"], "motion": ["depth.Z", "R"]}
+    with pytest.raises(
+        InputError, match=r"f\.exr: missing channel normal\.R, normal\.G, normal\.B"
+    ):
+        resolve_channels(ch, "canonical", source="f.exr", buffers=("normal",), required=("normal",))
+    assert "normal" not in resolve_channels(ch, "canonical", buffers=("normal",))  # optional
+
+
+def test_stack_buffers_converts_once_and_check_channels():
+    ch = {c: np.full((H, W), i, np.float16) for i, c in enumerate("RGB")} | {"d": _chan(3)}
+    buffers = stack_buffers(ch, {"color": ["R", "G", "B"], "depth": ["d"]})
+    assert {k: (v.dtype, v.shape) for k, v in buffers.items()} == {
+        "color": (np.float32, (3, H, W)),
+        "depth": (np.float32, (1, H, W)),
+    }
+    np.testing.assert_array_equal(buffers["color"][:, 0, 0], [0, 1, 2])
+    layout = get_layout("canonical")
+    check_channels(ch, {"color": ["R", "G", "B"]}, layout, source="b.exr")
+    with pytest.raises(InputError, match=r"b\.exr: missing channel B, Q for buffer 'color'"):
+        check_channels({"R": 0, "G": 0}, {"color": ["R", "B", "Q"]}, layout, source="b.exr")
