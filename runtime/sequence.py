@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .contract import BUFFER_CHANNELS
 from .errors import InputError
 from .exr import read_exr, read_exr_header, write_exr
 from .layouts import Layout, check_channels, get_layout, resolve_channels, stack_buffers
@@ -361,7 +362,7 @@ def _reference_channels(names: Collection[str], layout: Layout | str, path: Path
     """R,G,B of a reference, else the channels of the layout's `color`."""
     if all(c in names for c in "RGB"):
         return list("RGB")
-    only_color = {b: "none" for b in ("color_b", "albedo", "normal", "depth", "motion")}
+    only_color = {b: "none" for b in BUFFER_CHANNELS if b != "color"}
     return resolve_channels(names, _layout(layout), only_color, source=str(path))["color"]
 
 
