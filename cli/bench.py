@@ -13,6 +13,7 @@ from rich.table import Table
 from rtdenoise.runtime.memory import tune_allocator
 
 from .common import fail, passive_openmp_threads, user_errors
+from .compare import compare_command
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 console = Console()
@@ -140,6 +141,9 @@ def bench_one_op(
     console.print(table)
     worst = max(result["max_abs_diff"].values())
     console.print(f"largest difference from PyTorch: {worst:.2e}")
+
+
+app.command("compare")(compare_command)
 
 
 def main() -> None:

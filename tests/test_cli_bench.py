@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import json
+import sys
 
+import pytest
 from typer.testing import CliRunner
 
 from rtdenoise.cli.bench import app
+from rtdenoise.shipped import sample_sequences
 
 runner = CliRunner()
 
@@ -50,3 +53,39 @@ def test_bench_op_and_its_errors():
     assert res.exit_code == 2 and "unknown op 'Nope'" in res.output
     res = runner.invoke(app, ["op", "KernelApply", "--attr", "sizes=3"])
     assert res.exit_code == 2 and "--attr 'sizes=3'" in res.output
+
+
+def test_compare_models_and_oidn_at_a_tiny_size(tmp_path):
+    """Two sizes, a shipped model on both ORT paths and OIDN fast, quality on one sequence."""
+    pytest.importorskip("pyoidn")
+    out, plot = tmp_path / "c.json", tmp_path / "c.png"
+    seq = str(sample_sequences()[0])
+    args = ["compare", "demo:wskp", "--portable", "--oidn", "fast", "--size", "24x16"]
+    args += ["--size", "48x32", "--repeats", "2", "--sequence", seq, "--json", str(out)]
+    res = runner.invoke(app, [*args, "--plot", str(plot)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    names = {"demo:wskp", "demo:wskp (portable)", "OIDN fast"}
+    assert [r["size"] for r in data["speed"]] == [[16, 24], [32, 48]]
+    for row in data["speed"]:
+        assert set(row["times_ms"]) == names and all(len(t) == 2 for t in row["times_ms"].values())
+        s = row["summary"]["OIDN fast"]
+        assert s["min_ms"] <= s["median_ms"] <= s["max_ms"]
+        assert s["ns_per_pixel"] == pytest.approx(
+            s["median_ms"] * 1e6 / (row["size"][0] * row["size"][1])
+        )
+    q = data["quality"]
+    # the same shipped model scores the same on both paths, and every denoiser beats the input
+    assert q["demo:wskp"]["mean"]["psnr"] == pytest.approx(
+        q["demo:wskp (portable)"]["mean"]["psnr"], abs=1e-3
+    )
+    for name in names:
+        assert q[name]["mean"]["psnr"] > data["noisy"]["mean"]["psnr"] + 6.0
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_compare_without_pyoidn_says_what_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pyoidn", None)
+    res = runner.invoke(app, ["compare", "demo:wskp", "--size", "8x8", "--repeats", "1"])
+    assert res.exit_code == 2
+    assert "pip install 'rtdenoise[bench]'" in res.output
