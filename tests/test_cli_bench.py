@@ -27,6 +27,7 @@ def test_bench_model_reports_every_path_and_stage(tmp_path):
         ("AdaptiveFusion", (24, 40)),
         ("KernelApply", (12, 20)),
         ("KernelApply", (24, 40)),
+        ("Reproject", (24, 40)),
     ]
     assert all(s["calls_per_frame"] == 1 for s in data["stages"])
 
