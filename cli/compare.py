@@ -10,23 +10,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .common import user_errors, write_json
+from .common import parse_size, user_errors, write_json
 
 console = Console()
 DEFAULT_SIZES = ("320x240", "1280x720", "1920x1080")
-
-
-def _size(text: str) -> tuple[int, int]:
-    """'WIDTHxHEIGHT' -> (H, W)."""
-    from rtdenoise.runtime.errors import InputError
-
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720") from None
-    if w < 1 or h < 1:
-        raise InputError(f"--size {text!r}: width and height must be >= 1")
-    return h, w
 
 
 def _onnx_source(spec: str) -> str | bytes:
@@ -155,8 +142,8 @@ def compare_command(
     from rtdenoise.runtime.denoiser import Denoiser
     from rtdenoise.shipped import MODELS_DIR
 
-    with user_errors():
-        sizes = [_size(s) for s in (size or DEFAULT_SIZES)]
+    with user_errors(extra="bench"):
+        sizes = [parse_size(s)[::-1] for s in (size or DEFAULT_SIZES)]  # (H, W)
         qualities = [q for q in (oidn or ["high", "fast"]) if q != "none"]
         specs = models or [f"demo:{p.stem}" for p in sorted(MODELS_DIR.glob("*.onnx"))]
         if threads:

@@ -138,6 +138,42 @@ def find_frames(spec: Spec | Sequence[Spec]) -> list[Path]:
     return _sorted_unique(files, "frames")
 
 
+def group_shots(specs: Sequence[Spec]) -> list[tuple[str, list[Spec]]]:
+    """Several inputs -> shots, (name, specs) each, in the order given.
+
+    Each folder, glob or printf pattern is one shot; EXR files given one by one (e.g. an
+    unquoted glob the shell expanded) are one shot per folder. A shot is named after its
+    folder, with as many parent folders as it takes to tell it from the others (``a/render``
+    and ``b/render``, but ``c``); InputError for two shots in one folder (two patterns).
+    """
+    groups: dict[tuple[str, Path], list[Spec]] = {}
+    for spec in specs:
+        path = Path(os.fspath(spec))
+        if path.is_dir():
+            key = ("folder", path.resolve())
+        elif path.is_file():
+            key = ("folder", path.parent.resolve())
+        else:  # a glob or printf pattern: a shot of its own
+            key = (os.fspath(spec), path.parent.resolve())
+        groups.setdefault(key, []).append(spec)
+    folders = [folder.parts for _, folder in groups]
+    seen: dict[tuple[str, ...], Spec] = {}
+    for parts, shot in zip(folders, groups.values(), strict=True):
+        if parts in seen:
+            raise InputError(
+                f"{os.fspath(seen[parts])} and {os.fspath(shot[0])} are two shots in one folder; "
+                "give each shot its own folder, or run them one at a time"
+            )
+        seen[parts] = shot[0]
+    names = []
+    for parts in folders:  # the shortest trailing part of its path that no other shot shares
+        k = 1
+        while k < len(parts) and any(q[-k:] == parts[-k:] for q in folders if q != parts):
+            k += 1
+        names.append("/".join(parts[-k:]))
+    return list(zip(names, groups.values(), strict=True))
+
+
 def reference_index(spec: Spec) -> dict[int | None, Path]:
     """Frame number -> reference file for a reference folder, glob, printf pattern or file."""
     files = _expand(spec, references=True)

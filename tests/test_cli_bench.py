@@ -14,7 +14,8 @@ from rtdenoise.shipped import sample_sequences
 runner = CliRunner()
 
 
-def test_bench_model_reports_every_path_and_stage(tmp_path):
+def test_bench_model_reports_every_path_and_stage(tmp_path, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")  # one table row per line
     out = tmp_path / "bench.json"
     res = runner.invoke(
         app, ["model", "demo:afn", "--size", "40x24", "--repeats", "1", "--json", str(out)]
@@ -30,6 +31,9 @@ def test_bench_model_reports_every_path_and_stage(tmp_path):
         ("Reproject", (24, 40)),
     ]
     assert all(s["calls_per_frame"] == 1 for s in data["stages"])
+    # stages are labelled WIDTHxHEIGHT, as --size is given (the tensors are N, C, H, W)
+    assert "KernelApply 40x24 x1" in res.output and "KernelApply 20x12 x1" in res.output
+    assert "afn at 40x24" in res.output
 
 
 def test_bench_op_and_its_errors():
