@@ -12,7 +12,14 @@ from rich.table import Table
 
 from rtdenoise.runtime.memory import tune_allocator
 
-from .common import VersionOption, fail, parse_size, passive_openmp_threads, user_errors
+from .common import (
+    VersionOption,
+    fail,
+    one_line_warnings,
+    parse_size,
+    passive_openmp_threads,
+    user_errors,
+)
 from .compare import compare_command
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
@@ -152,6 +159,7 @@ app.command("compare")(compare_command)
 
 
 def main() -> None:
+    one_line_warnings()
     passive_openmp_threads()
     tune_allocator()  # as denoise-run does: measure what it runs
     app()

@@ -8,6 +8,7 @@ import math
 import os
 import platform
 import sys
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from importlib import metadata
@@ -163,6 +164,12 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
         raise InputError(f"{path.parent}: is a file, not a folder")
     write_text_atomic(path, text)
     return path
+
+
+def one_line_warnings() -> None:
+    """Show Python warnings (e.g. the fast kernels' fallback) as `warning: <message>` lines on
+    stderr, like the CLI's own, instead of file:line plus source. Process-wide: mains only."""
+    warnings.showwarning = lambda message, *_args, **_kw: warn(str(message))
 
 
 def passive_openmp_threads() -> None:

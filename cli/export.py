@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .common import VersionOption, fail, passive_openmp_threads, user_errors
+from .common import VersionOption, fail, one_line_warnings, passive_openmp_threads, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 console = Console()
@@ -82,6 +82,7 @@ def export(
 
 
 def main() -> None:
+    one_line_warnings()
     passive_openmp_threads()
     app()
 

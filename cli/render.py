@@ -20,7 +20,7 @@ from rich.progress import (
 
 from ..datagen.render import RenderConfig, derive_seed, render_sequence
 from ..datagen.variant import SUPPORTED_VARIANTS, select_variant
-from .common import VersionOption, parse_size, user_errors
+from .common import VersionOption, one_line_warnings, parse_size, user_errors
 
 HELP = """Render N random animated scenes (camera orbit, Mitsuba 3 path tracer) into
 OUT_DIR/seq_XXX/, one folder per sequence, XXX = sequence index.
@@ -144,6 +144,7 @@ def render(
 
 def main() -> None:
     """Console-script entry point."""
+    one_line_warnings()
     app()
 
 

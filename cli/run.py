@@ -19,6 +19,7 @@ from rich.table import Table
 
 from rtdenoise.cli.common import (
     VersionOption,
+    one_line_warnings,
     quiet_native_output,
     user_errors,
     warn,
@@ -331,6 +332,7 @@ def print_overall(reports: list[dict[str, Any]], model: str, console: Console) -
 
 def main() -> None:
     """Console script entry point."""
+    one_line_warnings()
     # A program denoising frame after frame: reuse large blocks instead of fresh mmaps that
     # page-fault on every frame (process-wide, so the CLI decides it, not the library).
     tune_allocator()

@@ -12,7 +12,13 @@ from typing import Annotated
 
 import typer
 
-from rtdenoise.cli.common import VersionOption, fail, passive_openmp_threads, user_errors
+from rtdenoise.cli.common import (
+    VersionOption,
+    fail,
+    one_line_warnings,
+    passive_openmp_threads,
+    user_errors,
+)
 
 app = typer.Typer(
     add_completion=False,
@@ -145,6 +151,7 @@ def train_command(
 
 def main() -> None:
     """Console-script entry point."""
+    one_line_warnings()
     passive_openmp_threads()
     app()
 
