@@ -10,7 +10,8 @@ Pitfalls handled here (research-notes "Custom ops"):
 - the library's default result hook converts every output with `.flatten().tolist()`
   (~180 ms per 720p call); `_array_hook` hands the ndarray back instead. It replaces a
   library-internal function, so it is installed only for the versions checked to speak its
-  protocol (`HOOK_VERSIONS`: their `_ocos.py` are identical, and the suite passed on each);
+  protocol (`HOOK_VERSIONS`: their `_ocos.py` are identical, and the op, demo-model and
+  torch-free runtime tests passed on each);
 - every declared attribute must be present on the node (the exporter writes them all);
 - inputs and outputs are copied on every call; at 720p KernelApply's 49-channel kernel is
   180 MB, and glibc serves such blocks with fresh mmaps that page-fault on every call.
