@@ -442,10 +442,17 @@ def iter_sequence(
     spec: Spec | Sequence[Spec],
     layout: Layout | str = "canonical",
     overrides: Mapping[str, str] | None = None,
+    *,
+    buffers: Collection[str] | None = None,
 ) -> Iterator[Frame]:
-    """Frames of a sequence in order, after checking all headers (channels, one size)."""
+    """Frames of a sequence in order, after checking all headers (channels, one size).
+
+    spec: a folder, glob, printf pattern or file (or a list). layout: a preset name, a layout
+    file (.toml) or a Layout. buffers: read only these (e.g. `Denoiser.required_buffers`),
+    each of which every frame must have; None: every buffer the layout finds.
+    """
     paths = find_frames(spec)
-    plan = plan_sequence(paths, layout, overrides)
+    plan = plan_sequence(paths, layout, overrides, buffers=buffers)
     for i, p in enumerate(paths):
         yield plan.read(p, index=i)
 

@@ -290,3 +290,21 @@ def test_bad_layout_files_are_one_line_errors_naming_file_and_key(tmp_path, text
     with pytest.raises(InputError, match=match) as info:
         get_layout(str(path))
     assert str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_the_docs_example_layout_reads_what_it_describes(tmp_path):
+    """docs/layouts.md's worked example is a valid layout doing what its comments say."""
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "layouts.md").read_text()
+    example = docs.split("### Example", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
+    layout_file = tmp_path / "renderer.toml"
+    layout_file.write_text(example)
+    ch = {f"beauty.{c}": _chan(2.0) for c in "RGB"}
+    ch |= {f"diffuse_albedo.{c}": _chan(1.5) for c in "RGB"}
+    ch |= {f"N_packed.{c}": _chan(v) for c, v in zip("RGB", (0.5, 0.5, 1.0), strict=True)}
+    ch |= {"Z": _chan(4.0), "velocity.U": _chan(0.125), "velocity.V": _chan(0.5)}
+    path = _write_single(tmp_path / "f_0001.exr", ch)
+    b = read_frame(path, str(layout_file)).buffers
+    np.testing.assert_allclose(b["albedo"][:, 0, 0], [1, 1, 1])
+    np.testing.assert_allclose(b["normal"][:, 0, 0], [0, 0, 1])
+    # moved +U (right) and +V (up) since the previous frame: previous = current + (-1, +3) px
+    np.testing.assert_allclose(b["motion"][:, 0, 0], [-0.125 * W, 0.5 * H])
