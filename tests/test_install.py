@@ -11,6 +11,7 @@ fresh_venv"`.
 from __future__ import annotations
 
 import os
+import platform
 import shutil
 import subprocess
 import sys
@@ -21,6 +22,14 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 NOT_SOURCES = (".git", ".venv", "build", "dist", "*.egg-info", "__pycache__", ".*_cache")
+# Where pyproject.toml installs the fast kernels (the environment markers of numba and
+# onnxruntime-extensions).
+FAST_KERNEL_WHEELS = sys.version_info < (3, 14) and (sys.platform, platform.machine()) in {
+    ("linux", "x86_64"),
+    ("linux", "aarch64"),
+    ("darwin", "arm64"),
+    ("win32", "AMD64"),
+}
 OFFLINE = ("NewConnectionError", "Temporary failure in name resolution", "Network is unreachable")
 
 
@@ -58,12 +67,14 @@ def test_fresh_venv_base_install_has_no_framework(fresh_venv, tmp_path):
 def test_fresh_venv_demo_runs_with_the_fast_kernels(fresh_venv, tmp_path):
     proc = _run([fresh_venv / "denoise-run", "--demo", "-o", tmp_path / "out"], cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    assert "over 3 sequences: mean PSNR" in proc.stdout and proc.stderr == ""
+    assert "over 3 sequences: mean PSNR" in proc.stdout
     assert len(list((tmp_path / "out").glob("seq_*/frame_*.exr"))) == 24
-    if sys.platform == "linux" and os.uname().machine in ("x86_64", "aarch64"):
-        code = "from rtdenoise.runtime import Denoiser; print(Denoiser('demo:afn').fast_kernels)"
-        proc = _run([fresh_venv / "python", "-c", code], cwd=tmp_path)  # not this checkout
-        assert proc.stdout.strip() == "True", proc.stderr
+    # Where numba and onnxruntime-extensions have wheels they were installed and used (no
+    # warning); elsewhere denoise-run says, once, that it runs the portable path.
+    if FAST_KERNEL_WHEELS:
+        assert proc.stderr == ""
+    else:
+        assert proc.stderr.startswith("warning: fast kernels unavailable")
 
 
 @pytest.mark.parametrize(
