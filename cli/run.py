@@ -185,7 +185,10 @@ def run(
     output: Annotated[
         Path | None,
         typer.Option(
-            "-o", "--output", help="Output folder (required): `OUT/<input name>.exr` (R,G,B)."
+            "-o",
+            "--output",
+            help="Output folder (required): `OUT/<input name>.exr` (R,G,B); "
+            "`OUT/<shot>/<input name>.exr` with several shots.",
         ),
     ] = None,
     model: Annotated[
