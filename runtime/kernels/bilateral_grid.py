@@ -197,8 +197,8 @@ def bilateral_grid(
     reach = rows > 0
     y_lo = np.where(reach.any(1), reach.argmax(1), 0)
     y_hi = np.where(reach.any(1), h - reach[:, ::-1].argmax(1), 0)
-    z0 = np.empty((n, h, w), np.int64)
-    z1 = np.empty((n, h, w), np.int64)
+    z0 = np.empty((n, h, w), np.int32)
+    z1 = np.empty((n, h, w), np.int32)
     wz0 = np.empty((n, h, w), np.float32)
     wz1 = np.empty((n, h, w), np.float32)
     _depth_corners(guide, d, CELL, z0, z1, wz0, wz1)
