@@ -1,17 +1,20 @@
 """BilateralGrid as a fast kernel (Meng20); defined in rtdenoise.ops.bilateral_grid.
 
 Linear in pixels plus cells, no per-pixel loop over cells: every pixel touches its 2 x 2 x 2
-cells only.
+cells only. Three parallel passes (few, so that a loaded machine pays few thread wake-ups):
 
-1. tables: per image row and column the first covering cell and the two tent weights (numpy,
-   they depend on s only); per pixel the first depth cell and its two weights (parallel over
-   rows, `_depth_corners`);
-2. splat (Meng20 eqs. (10)-(11)): one parallel task per grid row (n, i) zeroes its cells, adds
-   [T * image, T] from the pixel rows that reach it (each pixel row feeds two grid rows, so no
-   two tasks write one cell), then divides each cell by its weight sum. The grid is
-   (N, Gh, Gw, D, C + 1), channels last: a cell is one contiguous run of C + 1 floats;
-3. slice (Meng20 eq. (13)): one parallel task per pixel row reads the same 8 corners of each
-   pixel, keeping cells whose weight sum is positive, and writes sum T M / sum T.
+1. `_prepare`, per pixel row: each pixel's payload [r, g, b, 1] as one run of CELL = 4 floats,
+   and its two depth cells and their tent weights (the row and column cells and weights are
+   numpy tables: they depend on s only);
+2. `_splat` (Meng20 eqs. (10)-(11)), per grid row (n, i): zero its cells, add T * payload from
+   the pixel rows that reach it (each pixel row feeds two grid rows, so no two tasks write one
+   cell), divide each cell by its weight sum. The grid is (N, Gh, Gw, D, CELL): a cell is one
+   contiguous run [3 channels, weight sum];
+3. `_slice` (Meng20 eq. (13)), per pixel row: the same 8 corners of each pixel, cells with a
+   positive weight sum only, sum T M / sum T.
+
+C channels run 3 at a time (the weights do not depend on the image; a last group of 1 or 2 is
+padded with zeros), so the hot loops have fixed-size cells.
 """
 
 from __future__ import annotations
@@ -56,32 +59,13 @@ def _tent(u):
 
 
 @njit(parallel=True, cache=True, fastmath=True)
-def _depth_corners(guide, depth, stride, z0, z1, wz0, wz1):
-    """Per pixel: offsets (cell index x stride) of the two depth cells around
-    z = (clamp(g, 0, 255) + 0.5) D / 256 (Meng20 eq. (12)), clamped into the grid, and their
-    tent weights (0 outside the grid)."""
-    n_img, h, w = z0.shape
-    depth_f = np.float32(depth)
-    for task in prange(n_img * h):
-        n, y = task // h, task % h
-        g_row = guide[n, 0, y]
-        for x in range(w):
-            g = min(max(g_row[x], _ZERO), _GMAX)
-            t = (g + _HALF) * depth_f / _GRANGE - _HALF
-            first = np.floor(t)
-            u = t - first
-            i0 = min(max(int(first), -1), depth - 1)  # integer clamp: memory safe for any input
-            z0[n, y, x] = max(i0, 0) * stride
-            z1[n, y, x] = min(i0 + 1, depth - 1) * stride
-            wz0[n, y, x] = _tent(u) if i0 >= 0 else _ZERO
-            wz1[n, y, x] = _tent(u - _ONE) if i0 + 1 < depth else _ZERO
-
-
-@njit(parallel=True, cache=True, fastmath=True)
-def _payload(image, c0, hom):
-    """hom[n, y, x] = [image[n, c0 : c0 + 3, y, x] (0 past the last channel), 1]: a pixel's
-    splat payload as one aligned run of CELL floats."""
+def _prepare(image, c0, guide, depth, hom, z0, z1, wz0, wz1):
+    """Per pixel: hom = [image[c0 : c0 + 3] (0 past the last channel), 1], the splat payload as
+    one aligned run of CELL floats; z0, z1 = offsets (cell index x CELL) of the two depth cells
+    around z = (clamp(g, 0, 255) + 0.5) D / 256 (Meng20 eq. (12)), clamped into the grid;
+    wz0, wz1 = their tent weights (0 outside the grid)."""
     n_img, n_ch, h, w = image.shape
+    depth_f = np.float32(depth)
     for task in prange(n_img * h):
         n, y = task // h, task % h
         row = hom[n, y]
@@ -95,6 +79,17 @@ def _payload(image, c0, hom):
                     row[x, k] = _ZERO
         for x in range(w):
             row[x, CELL - 1] = _ONE
+        g_row = guide[n, 0, y]
+        for x in range(w):
+            g = min(max(g_row[x], _ZERO), _GMAX)
+            t = (g + _HALF) * depth_f / _GRANGE - _HALF
+            first = np.floor(t)
+            u = t - first
+            i0 = min(max(int(first), -1), depth - 1)  # integer clamp: memory safe for any input
+            z0[n, y, x] = max(i0, 0) * CELL
+            z1[n, y, x] = min(i0 + 1, depth - 1) * CELL
+            wz0[n, y, x] = _tent(u) if i0 >= 0 else _ZERO
+            wz1[n, y, x] = _tent(u - _ONE) if i0 + 1 < depth else _ZERO
 
 
 @njit(cache=True, fastmath=True)
@@ -201,11 +196,10 @@ def bilateral_grid(
     z1 = np.empty((n, h, w), np.int32)
     wz0 = np.empty((n, h, w), np.float32)
     wz1 = np.empty((n, h, w), np.float32)
-    _depth_corners(guide, d, CELL, z0, z1, wz0, wz1)
     hom = np.empty((n, h, w, CELL), np.float32)
     grid = np.empty(n * gh * row_size, np.float32)
     # the weights do not depend on the image: channels 3 at a time (the last group padded)
     for c0 in range(0, c, CELL - 1):
-        _payload(image, c0, hom)
+        _prepare(image, c0, guide, d, hom, z0, z1, wz0, wz1)
         _splat(hom, rows, y_lo, y_hi, x0, x1, wx0, wx1, z0, z1, wz0, wz1, grid, row_size)
         _slice(grid, row_size, y0, y1, wy0, wy1, x0, x1, wx0, wx1, z0, z1, wz0, wz1, c0, out)
