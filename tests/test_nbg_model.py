@@ -167,7 +167,8 @@ def test_registry_config_and_size():
 def test_exports_three_grid_nodes_and_matches_ort_over_eight_frames():
     """One BilateralGrid node per grid; ORT (fast kernels and portable function bodies)
     follows PyTorch over a committed 8-frame sequence with state fed back, and over a synthetic
-    sequence whose size is not a multiple of any s."""
+    sequence whose size is not a multiple of any s. With outlier suppression on (the default
+    configuration's export is checked on the shipped demo, tests/test_demo_models.py)."""
     from rtdenoise.export.onnx_export import export_model
     from rtdenoise.export.validate import synthetic_frames, validate
     from rtdenoise.models.data import load_sequence
@@ -175,7 +176,7 @@ def test_exports_three_grid_nodes_and_matches_ort_over_eight_frames():
     from rtdenoise.shipped import sample_sequences
 
     torch.manual_seed(0)
-    model = build_model("nbg").eval()
+    model = build_model("nbg", {"outlier_suppression": True}).eval()
     proto = export_model(model)
     nodes = [n for n in proto.graph.node if n.domain == "rtdenoise"]
     assert [(n.op_type, {a.name: a.i for a in n.attribute}) for n in nodes] == [
@@ -195,5 +196,8 @@ def test_exports_three_grid_nodes_and_matches_ort_over_eight_frames():
     assert report.passed, report.errors
     assert set(report.errors) == {"ort_fast", "ort_portable"}
     assert all(len(v) == 8 for v in report.errors.values())
-    report = validate(model, data, synthetic_frames(model.inputs, 3, 21, 34))
+    synthetic = synthetic_frames(model.inputs, 3, 21, 34)
+    for frame in synthetic:
+        frame["color"][:, 5, 5] = 500.0  # a firefly for the outlier test
+    report = validate(model, data, synthetic)
     assert report.passed, report.errors
