@@ -43,10 +43,18 @@ class PassThrough:
         pass
 
 
-def load_backend(model: str, *, portable: bool = False, threads: int | None = None) -> Backend:
+def load_backend(
+    model: str,
+    *,
+    portable: bool = False,
+    threads: int | None = None,
+    learn: bool = True,
+    learn_every: int = 1,
+) -> Backend:
     """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
 
     portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
+    learn, learn_every: online learning of a model that learns while it runs (Denoiser).
     """
     if model.strip().lower() == "none":
         return PassThrough()
@@ -54,4 +62,6 @@ def load_backend(model: str, *, portable: bool = False, threads: int | None = No
         from .denoiser import Denoiser
     except ImportError as exc:
         raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
-    return Denoiser(model, fast_kernels=not portable, threads=threads)
+    return Denoiser(
+        model, fast_kernels=not portable, threads=threads, learn=learn, learn_every=learn_every
+    )
