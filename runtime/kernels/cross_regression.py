@@ -4,12 +4,11 @@ rtdenoise.ops.cross_regression. float64 throughout, like the other forms.
 Three passes over the 2N regressions (A's variables against y^B, then B's against y^A):
 1. per-pixel stack [y, albedo, normal, sigma, var, target] (14 planes), var from the in-image
    3x3 neighbours;
-2. one parallel task per (regression, centre row): for each window row and column offset the
-   window pixels of all the row's centres are read through a precomputed mirrored column table,
-   and the 61 distinct sums of X^T W X and X^T W y (10 shared by the colour channels, 17 per
-   channel) are accumulated in row arrays; then a 6 x 6 Cholesky solve per centre and channel;
-3. one parallel task per (regression, pixel row): eq. (5) over the covering centres, each
-   centre offset one branch-free loop over the row (validity as a 0/1 factor).
+2. one parallel task per (regression, centre row); per centre, the 61 distinct sums of X^T W X
+   and X^T W y (10 shared by the colour channels, 17 per channel) over its mirrored window in
+   local accumulators (registers, not memory), then a 6 x 6 Cholesky solve per channel;
+3. one parallel task per (regression, pixel row); per pixel, eq. (5) over the covering
+   centres in local accumulators.
 """
 
 from __future__ import annotations
@@ -59,88 +58,95 @@ def _stack(y, target, albedo, normal, q):
 
 
 @njit(cache=True, fastmath=True)
-def _accumulate(q, sy, cols, cen, acc):
-    """Add the window pixels (row sy, columns cols[j]) of every centre j of a centre row."""
-    for j in range(cols.shape[0]):
-        sx = cols[j]
-        dy0 = q[0, sy, sx] - cen[0, j]
-        dy1 = q[1, sy, sx] - cen[1, j]
-        dy2 = q[2, sy, sx] - cen[2, j]
-        wgt = (
-            math.exp(-(dy0 * dy0 + dy1 * dy1 + dy2 * dy2) / (cen[10, j] + q[10, sy, sx] + 1e-4))
-            + 1e-7
-        )
-        inv = 1.0 / (cen[9, j] + q[9, sy, sx] + 1e-2)
-        n0 = q[6, sy, sx] - cen[6, j]
-        n1 = q[7, sy, sx] - cen[7, j]
-        n2 = q[8, sy, sx] - cen[8, j]
-        wn0, wn1, wn2 = wgt * n0, wgt * n1, wgt * n2
-        # shared by the channels: 1, n (x0 and x3..5)
-        acc[0, j] += wgt
-        acc[1, j] += wn0
-        acc[2, j] += wn1
-        acc[3, j] += wn2
-        acc[4, j] += wn0 * n0
-        acc[5, j] += wn0 * n1
-        acc[6, j] += wn0 * n2
-        acc[7, j] += wn1 * n1
-        acc[8, j] += wn1 * n2
-        acc[9, j] += wn2 * n2
-        for c in range(3):
-            x1 = (dy0 if c == 0 else (dy1 if c == 1 else dy2)) * inv
-            x2 = q[3 + c, sy, sx] - cen[3 + c, j]
-            t = q[11 + c, sy, sx]
-            wx1, wx2, wt = wgt * x1, wgt * x2, wgt * t
-            k = 10 + 17 * c
-            acc[k, j] += wx1
-            acc[k + 1, j] += wx2
-            acc[k + 2, j] += wx1 * x1
-            acc[k + 3, j] += wx1 * x2
-            acc[k + 4, j] += wx2 * x2
-            acc[k + 5, j] += wx1 * n0
-            acc[k + 6, j] += wx1 * n1
-            acc[k + 7, j] += wx1 * n2
-            acc[k + 8, j] += wx2 * n0
-            acc[k + 9, j] += wx2 * n1
-            acc[k + 10, j] += wx2 * n2
-            acc[k + 11, j] += wt
-            acc[k + 12, j] += wx1 * t
-            acc[k + 13, j] += wx2 * t
-            acc[k + 14, j] += wt * n0
-            acc[k + 15, j] += wt * n1
-            acc[k + 16, j] += wt * n2
+def _centre_sums(q, b, cy, cx, r, acc):
+    """The 61 distinct sums of X^T W X and X^T W y over the mirrored window of centre (cy, cx)
+    (10 shared by the channels: 1 and n; 17 per channel), in local accumulators."""
+    h, w = q.shape[2], q.shape[3]
+    c0, c1, c2 = q[b, 0, cy, cx], q[b, 1, cy, cx], q[b, 2, cy, cx]
+    ca = (q[b, 3, cy, cx], q[b, 4, cy, cx], q[b, 5, cy, cx])
+    cn0, cn1, cn2 = q[b, 6, cy, cx], q[b, 7, cy, cx], q[b, 8, cy, cx]
+    csig, cvar = q[b, 9, cy, cx], q[b, 10, cy, cx]
+    for k in range(61):
+        acc[k] = 0.0
+    for dy in range(-r, r + 1):
+        sy = mirror(cy + dy, h)
+        for dx in range(-r, r + 1):
+            sx = mirror(cx + dx, w)
+            d0 = q[b, 0, sy, sx] - c0
+            d1 = q[b, 1, sy, sx] - c1
+            d2 = q[b, 2, sy, sx] - c2
+            wgt = math.exp(-(d0 * d0 + d1 * d1 + d2 * d2) / (cvar + q[b, 10, sy, sx] + 1e-4))
+            wgt += 1e-7
+            inv = 1.0 / (csig + q[b, 9, sy, sx] + 1e-2)
+            n0 = q[b, 6, sy, sx] - cn0
+            n1 = q[b, 7, sy, sx] - cn1
+            n2 = q[b, 8, sy, sx] - cn2
+            wn0, wn1, wn2 = wgt * n0, wgt * n1, wgt * n2
+            acc[0] += wgt
+            acc[1] += wn0
+            acc[2] += wn1
+            acc[3] += wn2
+            acc[4] += wn0 * n0
+            acc[5] += wn0 * n1
+            acc[6] += wn0 * n2
+            acc[7] += wn1 * n1
+            acc[8] += wn1 * n2
+            acc[9] += wn2 * n2
+            for c in range(3):
+                x1 = (d0 if c == 0 else (d1 if c == 1 else d2)) * inv
+                x2 = q[b, 3 + c, sy, sx] - ca[c]
+                t = q[b, 11 + c, sy, sx]
+                wx1, wx2, wt = wgt * x1, wgt * x2, wgt * t
+                k = 10 + 17 * c
+                acc[k] += wx1
+                acc[k + 1] += wx2
+                acc[k + 2] += wx1 * x1
+                acc[k + 3] += wx1 * x2
+                acc[k + 4] += wx2 * x2
+                acc[k + 5] += wx1 * n0
+                acc[k + 6] += wx1 * n1
+                acc[k + 7] += wx1 * n2
+                acc[k + 8] += wx2 * n0
+                acc[k + 9] += wx2 * n1
+                acc[k + 10] += wx2 * n2
+                acc[k + 11] += wt
+                acc[k + 12] += wx1 * t
+                acc[k + 13] += wx2 * t
+                acc[k + 14] += wt * n0
+                acc[k + 15] += wt * n1
+                acc[k + 16] += wt * n2
 
 
 @njit(cache=True, fastmath=True)
-def _solve(acc, j, c, beta):
-    """beta (6,) of channel c of centre j: Cholesky solve of the assembled ridge system."""
+def _solve(acc, c, beta):
+    """beta (6,) of channel c: Cholesky solve of the ridge system assembled from the sums."""
     a = np.empty((P, P))
     rhs = np.empty(P)
     k = 10 + 17 * c
-    a[0, 0] = acc[0, j]
-    a[0, 1] = acc[k, j]
-    a[0, 2] = acc[k + 1, j]
-    a[0, 3] = acc[1, j]
-    a[0, 4] = acc[2, j]
-    a[0, 5] = acc[3, j]
-    a[1, 1] = acc[k + 2, j]
-    a[1, 2] = acc[k + 3, j]
-    a[1, 3] = acc[k + 5, j]
-    a[1, 4] = acc[k + 6, j]
-    a[1, 5] = acc[k + 7, j]
-    a[2, 2] = acc[k + 4, j]
-    a[2, 3] = acc[k + 8, j]
-    a[2, 4] = acc[k + 9, j]
-    a[2, 5] = acc[k + 10, j]
-    a[3, 3] = acc[4, j]
-    a[3, 4] = acc[5, j]
-    a[3, 5] = acc[6, j]
-    a[4, 4] = acc[7, j]
-    a[4, 5] = acc[8, j]
-    a[5, 5] = acc[9, j]
+    a[0, 0] = acc[0]
+    a[0, 1] = acc[k]
+    a[0, 2] = acc[k + 1]
+    a[0, 3] = acc[1]
+    a[0, 4] = acc[2]
+    a[0, 5] = acc[3]
+    a[1, 1] = acc[k + 2]
+    a[1, 2] = acc[k + 3]
+    a[1, 3] = acc[k + 5]
+    a[1, 4] = acc[k + 6]
+    a[1, 5] = acc[k + 7]
+    a[2, 2] = acc[k + 4]
+    a[2, 3] = acc[k + 8]
+    a[2, 4] = acc[k + 9]
+    a[2, 5] = acc[k + 10]
+    a[3, 3] = acc[4]
+    a[3, 4] = acc[5]
+    a[3, 5] = acc[6]
+    a[4, 4] = acc[7]
+    a[4, 5] = acc[8]
+    a[5, 5] = acc[9]
     for i in range(P):
         a[i, i] += 1e-3
-        rhs[i] = acc[k + 11 + i, j]
+        rhs[i] = acc[k + 11 + i]
     low = np.zeros((P, P))
     for i in range(P):
         for m in range(i + 1):
@@ -164,29 +170,17 @@ def _solve(acc, j, c, beta):
 @njit(parallel=True, cache=True, fastmath=True)
 def _regress(q, beta, window, stride):
     """beta (B, Hc, Wc, 3, 6): the ridge regression of every centre."""
-    nb, _, h, w = q.shape
+    nb = q.shape[0]
     hc, wc = beta.shape[1], beta.shape[2]
     r = window // 2
-    cols_of = np.empty((window, wc), dtype=np.int64)
-    for dx in range(window):
-        for j in range(wc):
-            cols_of[dx, j] = mirror(stride * j + dx - r, w)
     for task in prange(nb * hc):
         b = task // hc
         i = task - b * hc
-        cy = stride * i
-        cen = np.empty((NQ, wc))
-        for c in range(NQ):
-            for j in range(wc):
-                cen[c, j] = q[b, c, cy, stride * j]
-        acc = np.zeros((61, wc))
-        for dy in range(window):
-            sy = mirror(cy + dy - r, h)
-            for dx in range(window):
-                _accumulate(q[b], sy, cols_of[dx], cen, acc)
+        acc = np.empty(61)
         for j in range(wc):
+            _centre_sums(q, b, stride * i, stride * j, r, acc)
             for c in range(3):
-                _solve(acc, j, c, beta[b, i, j, c])
+                _solve(acc, c, beta[b, i, j, c])
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -198,25 +192,29 @@ def _reconstruct(q, beta, out, window, stride, lo, hi):
     for row in prange(nb * h):
         b = row // h
         y = row - b * h
-        num = np.zeros((3, w))
-        den = np.zeros(w)
-        for dj in range(-lo, hi + 1):
-            jy = y // stride + dj
-            if jy < 0 or jy >= hc or abs(y - stride * jy) > r:
-                continue
-            cy = stride * jy
-            for di in range(-lo, hi + 1):
-                for x in range(w):
+        for x in range(w):
+            p0, p1, p2 = q[b, 0, y, x], q[b, 1, y, x], q[b, 2, y, x]
+            psig, pvar = q[b, 9, y, x], q[b, 10, y, x]
+            num0 = 0.0
+            num1 = 0.0
+            num2 = 0.0
+            den = 0.0
+            for dj in range(-lo, hi + 1):
+                jy = y // stride + dj
+                if jy < 0 or jy >= hc or abs(y - stride * jy) > r:
+                    continue
+                cy = stride * jy
+                for di in range(-lo, hi + 1):
                     ix = x // stride + di
-                    ok = 1.0 if (ix >= 0 and ix < wc and abs(x - stride * ix) <= r) else 0.0
-                    ix = min(max(ix, 0), wc - 1)
+                    if ix < 0 or ix >= wc or abs(x - stride * ix) > r:
+                        continue
                     cx = stride * ix
-                    dy0 = q[b, 0, y, x] - q[b, 0, cy, cx]
-                    dy1 = q[b, 1, y, x] - q[b, 1, cy, cx]
-                    dy2 = q[b, 2, y, x] - q[b, 2, cy, cx]
-                    spread = q[b, 10, cy, cx] + q[b, 10, y, x] + 1e-4
-                    wgt = ok * (math.exp(-(dy0 * dy0 + dy1 * dy1 + dy2 * dy2) / spread) + 1e-7)
-                    inv = 1.0 / (q[b, 9, cy, cx] + q[b, 9, y, x] + 1e-2)
+                    dy0 = p0 - q[b, 0, cy, cx]
+                    dy1 = p1 - q[b, 1, cy, cx]
+                    dy2 = p2 - q[b, 2, cy, cx]
+                    spread = q[b, 10, cy, cx] + pvar + 1e-4
+                    wgt = math.exp(-(dy0 * dy0 + dy1 * dy1 + dy2 * dy2) / spread) + 1e-7
+                    inv = 1.0 / (q[b, 9, cy, cx] + psig + 1e-2)
                     n0 = q[b, 6, y, x] - q[b, 6, cy, cx]
                     n1 = q[b, 7, y, x] - q[b, 7, cy, cx]
                     n2 = q[b, 8, y, x] - q[b, 8, cy, cx]
@@ -226,11 +224,16 @@ def _reconstruct(q, beta, out, window, stride, lo, hi):
                         x2 = q[b, 3 + c, y, x] - q[b, 3 + c, cy, cx]
                         pred = co[0] + co[1] * dyc * inv + co[2] * x2
                         pred += co[3] * n0 + co[4] * n1 + co[5] * n2
-                        num[c, x] += wgt * pred
-                    den[x] += wgt
-        for c in range(3):
-            for x in range(w):
-                out[b, c, y, x] = max(num[c, x] / den[x], 0.0)
+                        if c == 0:
+                            num0 += wgt * pred
+                        elif c == 1:
+                            num1 += wgt * pred
+                        else:
+                            num2 += wgt * pred
+                    den += wgt
+            out[b, 0, y, x] = max(num0 / den, 0.0)
+            out[b, 1, y, x] = max(num1 / den, 0.0)
+            out[b, 2, y, x] = max(num2 / den, 0.0)
 
 
 @fast_kernel("CrossRegression")
