@@ -65,6 +65,7 @@ from ..base import DenoiserModel, FamilyConfig, StateSpec, register_family
 from ..online import Adam, ParameterLayout, adam_step, traced_step
 from ..ops.cross_bilateral_filter import cross_bilateral_filter
 from ..ops.cross_regression import cross_regression
+from ..profiling import stage
 from ..reprojection import ReprojectionConfig, svgf_reproject
 
 INPUTS = ("color", "color_b", "albedo", "normal", "depth", "motion")
@@ -280,21 +281,23 @@ class CrossReg(DenoiserModel):
         depth = torch.clamp(buffers["depth"], min=0.0)
 
         # 1-2. Log transform and cross-regression pilots (Choi24 s.4.4, s.4.1).
-        y_a, y_b = torch.log1p(color), torch.log1p(color_b)
-        pilot_a, pilot_b = cross_regression(
-            y_a, y_b, albedo, normal, cfg.regression_window, cfg.regression_stride
-        )
-        if cfg.pilot_range_clamp:  # no extrapolation beyond the window's observed values
-            r = cfg.regression_window // 2
-            hi = F.max_pool2d(torch.maximum(y_a, y_b), cfg.regression_window, 1, r)
-            pilot_a, pilot_b = torch.minimum(pilot_a, hi), torch.minimum(pilot_b, hi)
+        with stage("regression"):
+            y_a, y_b = torch.log1p(color), torch.log1p(color_b)
+            pilot_a, pilot_b = cross_regression(
+                y_a, y_b, albedo, normal, cfg.regression_window, cfg.regression_stride
+            )
+            if cfg.pilot_range_clamp:  # no extrapolation beyond the window's observed values
+                r = cfg.regression_window // 2
+                hi = F.max_pool2d(torch.maximum(y_a, y_b), cfg.regression_window, 1, r)
+                pilot_a, pilot_b = torch.minimum(pilot_a, hi), torch.minimum(pilot_b, hi)
 
         # 3. Reprojection of the previous log output and pilots (SVGF taps).
         history = torch.where(fresh, 0.0, state["history"])
         geometry = torch.where(fresh, 0.0, state["geometry"])
-        warped, valid = svgf_reproject(
-            history, geometry[:, :3], geometry[:, 3:], motion, normal, depth, self.reprojection
-        )
+        with stage("reprojection"):
+            warped, valid = svgf_reproject(
+                history, geometry[:, :3], geometry[:, 3:], motion, normal, depth, self.reprojection
+            )
         valid = valid * (1.0 - reset)
         has_history = valid > 0.5
         prev_out = torch.where(has_history, warped[:, :3], 0.5 * (pilot_a + pilot_b))
@@ -308,15 +311,18 @@ class CrossReg(DenoiserModel):
                 theta = theta.detach().requires_grad_(True)
 
             # 4. U-Net: bandwidths and temporal weight (s.4.2, s.4.4).
-            net_in = torch.cat((pilot_a, pilot_b, prev_out, albedo, normal), dim=1)
-            raw = torch.func.functional_call(self.unet, self.layout.unflatten(theta), (net_in,))
-            band = 1.0 / (raw[:, :5] ** 2 + BAND_EPS)
-            alpha = torch.sigmoid(raw[:, 5:6])
+            with stage("unet"):
+                net_in = torch.cat((pilot_a, pilot_b, prev_out, albedo, normal), dim=1)
+                params = self.layout.unflatten(theta)
+                raw = torch.func.functional_call(self.unet, params, (net_in,))
+                band = 1.0 / (raw[:, :5] ** 2 + BAND_EPS)
+                alpha = torch.sigmoid(raw[:, 5:6])
 
             # 5. Spatial filter (eq. (9)) and temporal blend (eqs. (8), (10)).
-            sum_a, sum_b, _, _ = cross_bilateral_filter(
-                pilot_a, pilot_b, albedo, normal, band, cfg.filter_window
-            )
+            with stage("filter"):
+                sum_a, sum_b, _, _ = cross_bilateral_filter(
+                    pilot_a, pilot_b, albedo, normal, band, cfg.filter_window
+                )
             alpha = valid * alpha + (1.0 - valid)
             hat_a = alpha * sum_a[:, :3] / (sum_a[:, 3:] + FILTER_EPS) + (1 - alpha) * prev_out
             hat_b = alpha * sum_b[:, :3] / (sum_b[:, 3:] + FILTER_EPS) + (1 - alpha) * prev_out
@@ -325,19 +331,20 @@ class CrossReg(DenoiserModel):
 
             # 6. Self-supervised loss (eqs. (11)-(13)) and its gradient.
             loss = self.online_loss(hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, has_history)
-            (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
+            with stage("backward"):
+                (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
 
-        learn = 1.0 - torch.clamp(state["freeze"].reshape(-1)[:1], 0.0, 1.0)
-        zeros = torch.zeros_like(theta)
-        theta_next, m, v, t = adam_step(
-            theta.detach(),
-            grad,
-            torch.where(fresh, zeros, state["adam_m"].reshape(-1)),
-            torch.where(fresh, zeros, state["adam_v"].reshape(-1)),
-            torch.where(fresh, 0.0, state["adam_t"].reshape(-1)),
-            learn,
-            self.adam,
-        )
+        with stage("adam"):
+            learn = 1.0 - torch.clamp(state["freeze"].reshape(-1)[:1], 0.0, 1.0)
+            theta_next, m, v, t = adam_step(
+                theta.detach(),
+                grad,
+                torch.where(fresh, 0.0, state["adam_m"].reshape(-1)),
+                torch.where(fresh, 0.0, state["adam_v"].reshape(-1)),
+                torch.where(fresh, 0.0, state["adam_t"].reshape(-1)),
+                learn,
+                self.adam,
+            )
 
         # 7. Back to linear radiance.
         output = torch.clamp(torch.expm1(hat), min=0.0)
