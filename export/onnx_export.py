@@ -49,7 +49,24 @@ def to_onnx(
         program = torch.onnx.export(module, args, dynamic_shapes=dynamic_shapes, **options)
     proto = onnx_ops.attach_functions(program.model_proto)
     proto.ir_version = IR_VERSION
+    strip_node_metadata(proto)
     return proto
+
+
+def strip_node_metadata(proto: onnx.ModelProto) -> None:
+    """Drop the exporter's per-node metadata (stack traces with the exporting machine's paths,
+    FX node dumps): a fifth to two thirds of a shipped file, and nothing a runtime reads."""
+    graphs = [proto.graph]
+    while graphs:
+        graph = graphs.pop()
+        for node in graph.node:
+            del node.metadata_props[:]
+            graphs.extend(a.g for a in node.attribute if a.type == onnx.AttributeProto.GRAPH)
+            for a in node.attribute:
+                graphs.extend(a.graphs)
+    for function in proto.functions:
+        for node in function.node:
+            del node.metadata_props[:]
 
 
 class ContractModule(nn.Module):
