@@ -18,6 +18,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from rtdenoise.cli.common import quiet_native_output, user_errors, warn, write_json
+from rtdenoise.runtime.atomic import check_writable
 from rtdenoise.runtime.backend import Backend, load_backend
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
@@ -54,6 +55,8 @@ def run_with_progress(
     half: bool,
     preview: bool,
     err: Console,
+    overwrite: bool = False,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """`run_sequence` with a progress bar on a terminal and warnings on stderr."""
     progress = Progress(
@@ -80,6 +83,8 @@ def run_with_progress(
             overrides,
             half=half,
             preview=preview,
+            overwrite=overwrite,
+            resume=resume,
             on_frame=advance,
             on_warning=warn,
             reading=quiet_native_output,
@@ -216,6 +221,18 @@ def run(
     threads: Annotated[
         int | None, typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads.")
     ] = None,
+    overwrite: Annotated[
+        bool,
+        typer.Option("--overwrite", help="Replace outputs that exist (default: refuse to start)."),
+    ] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Keep the outputs that exist and denoise the other frames, re-running up to "
+            "16 frames before each to rebuild the temporal history.",
+        ),
+    ] = False,
 ) -> None:
     """Denoise an EXR frame sequence with a real-time denoiser, frame after frame.
 
@@ -224,7 +241,10 @@ def run(
     `OUT/<same name>.exr` atomically (no partial files). With references (`ref_NNNN.exr`
     beside the frames, or --reference) prints PSNR / SSIM / SMAPE / relMSE of the output
     and of the noisy input, and TRMAE over the sequence. NaN/Inf input pixels are
-    replaced by 0 and reported.
+    replaced and reported; out-of-range values are clamped (docs/reliability.md). Existing
+    outputs are never replaced unless --overwrite; --resume continues an interrupted run.
+    A gap in the frame numbers resets the history. Ctrl-C stops after the frame being
+    written, leaving only complete files (exit 130).
 
     Metrics: PSNR and SSIM on tau-tonemapped images, tau(x) = (x / (1 + x))^(1/2.4);
     SMAPE and relMSE on linear radiance; the mean PSNR pools the error over all frames.
@@ -237,14 +257,28 @@ def run(
         overrides = parse_overrides(channel)
         lay = get_layout(layout)
         check_out_dir(output)
-        if metrics_json is not None and metrics_json.is_dir():
-            raise InputError(f"{metrics_json}: --metrics-json is a folder, expected a file path")
+        if overwrite and resume:
+            raise InputError("--overwrite and --resume exclude each other")
+        if metrics_json is not None:
+            if metrics_json.is_dir():
+                raise InputError(
+                    f"{metrics_json}: --metrics-json is a folder, expected a file path"
+                )
+            check_writable(metrics_json)  # now, not after every frame
         jobs, is_demo = _jobs(list(inputs or []), output, reference, demo)
         backend = load_backend(model, portable=portable, threads=threads)
         reports = []
         for job in jobs:
             report = run_with_progress(
-                job, backend, lay, overrides, half=half, preview=preview, err=err
+                job,
+                backend,
+                lay,
+                overrides,
+                half=half,
+                preview=preview,
+                err=err,
+                overwrite=overwrite,
+                resume=resume,
             )
             print_report(report, model, out)
             reports.append(report)
