@@ -8,19 +8,23 @@ buffer. docs/reliability.md has the table of every case.
 
 `RULES`, per buffer: the range [low, high] and what NaN / +Inf / -Inf become.
 
-| buffer | range | NaN | +Inf | -Inf |
-|---|---|---|---|---|
-| color, color_b | [0, 65504] | 0 | 0 | 0 |
-| albedo | [0, 1] | 0 | 0 | 0 |
-| normal | [-1, 1] | 0 | 0 | 0 |
-| depth | [0, 1e10] | 0 | 1e10 | 0 |
-| motion | [-2 max(H, W), 2 max(H, W)] px | +bound | +bound | -bound |
-| anything else (samples) | [-65504, 65504] | 0 | 0 | 0 |
+| buffer | range | NaN | +Inf | -Inf | above the range |
+|---|---|---|---|---|---|
+| color, color_b | [0, 65504] | 0 | 0 | 0 | 0 |
+| albedo | [0, 1] | 0 | 0 | 0 | clamped |
+| normal | [-1, 1] | 0 | 0 | 0 | clamped |
+| depth | [0, 1e10] | 0 | 1e10 | 0 | clamped |
+| motion | [-2 max(H, W), 2 max(H, W)] px | +bound | +bound | -bound | clamped |
+| anything else (samples) | [-65504, 65504] | 0 | 0 | 0 | clamped |
 
-65504 is the largest half float: a real-time renderer's HDR target holds no more, nor does
-the half-float EXR `denoise-run` writes, and a model run in float16 would overflow above it.
-Motion beyond 2 max(H, W) points off-screen either way; NaN motion is made off-screen, so the
-pixel's history is rejected rather than trusted.
+Values below the range are clamped. 65504 is the largest half float: a real-time renderer's
+HDR target holds no more, nor does the half-float EXR `denoise-run` writes, and a model run in
+float16 would overflow above it; radiance above it is what half floats call Inf, and is
+treated as such (0), because a region clamped to 65504 would stay in the history for some 50
+frames while a black one is gone in one (measured with demo:afn, docs/reliability.md).
+Pre-expose physically scaled renders into that range. Motion beyond 2 max(H, W) points
+off-screen either way; NaN motion is made off-screen, so the pixel's history is rejected
+rather than trusted.
 
 Outliers (`color`, `color_b`): a pixel whose largest channel exceeds `OUTLIER_RATIO` times the
 largest channel among its 8 neighbours (taken as at least `OUTLIER_FLOOR`) is scaled down to
@@ -60,6 +64,7 @@ class Rule:
     nan: float = 0.0
     posinf: float = 0.0
     neginf: float = 0.0
+    above: float | None = None  # what values above `high` become (None: `high`)
     outliers: bool = False
     frame_relative: bool = False
 
@@ -70,13 +75,13 @@ class Rule:
         s = float(max(hw))
         return Rule(
             self.low * s, self.high * s, self.nan * s, self.posinf * s, self.neginf * s,
-            self.outliers,
+            None if self.above is None else self.above * s, self.outliers,
         )  # fmt: skip
 
 
 RULES: dict[str, Rule] = {
-    "color": Rule(0.0, HALF_MAX, outliers=True),
-    "color_b": Rule(0.0, HALF_MAX, outliers=True),
+    "color": Rule(0.0, HALF_MAX, above=0.0, outliers=True),
+    "color_b": Rule(0.0, HALF_MAX, above=0.0, outliers=True),
     "albedo": Rule(0.0, ALBEDO_MAX),
     "normal": Rule(-1.0, 1.0),
     "depth": Rule(0.0, DEPTH_MAX, posinf=DEPTH_MAX),
@@ -176,8 +181,11 @@ def guard_buffer(name: str, a: np.ndarray, *, owned: bool = False) -> Guarded:
     if not finite:
         out.nonfinite = replace_nonfinite(name, a)
     if not in_range:
-        outside = (a < r.low) | (a > r.high)
+        above = a > r.high
+        outside = above | (a < r.low)
         out.clamped = int(_pixel_mask(outside).sum())
+        if r.above is not None:
+            a[above] = r.above
         np.clip(a, r.low, r.high, out=a)
     if r.outliers:
         out.outliers = replace_outliers(a)
