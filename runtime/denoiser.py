@@ -46,6 +46,7 @@ from .contract import (
     contract_from_session,
 )
 from .errors import InputError
+from .external_data import check_external_data
 from .guard import GuardReport, GuardTotals, guard_buffers, replace_nonfinite
 from .interrupts import deferred_signals
 
@@ -210,6 +211,7 @@ class Denoiser:
         else:
             path = resolve_model(model)
             self.source, payload = str(path), str(path)
+        check_external_data(payload if isinstance(payload, bytes) else path)  # inside its folder
         options = ort.SessionOptions()
         if threads is not None:
             if threads < 1:
