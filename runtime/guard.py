@@ -28,9 +28,10 @@ rather than trusted.
 
 Outliers (`color`, `color_b`): a pixel whose largest channel exceeds `OUTLIER_RATIO` times the
 largest channel among its 8 neighbours (taken as at least `OUTLIER_FLOOR`) is scaled down to
-that neighbour maximum. Normal Monte Carlo fireflies stay (the model's job; the committed
-1-spp sequences have none above 4 % of this threshold); a 1e6 or 1e30 sample is gone before it
-can enter the history. Two adjacent outliers shield each other: they are only clamped.
+that neighbour maximum. Normal Monte Carlo fireflies stay (the model's job; on the committed
+1-spp sequences the largest pixel reaches 10 % of this threshold); a 1e4 sample among values
+near 1 is gone before it can enter the history. Two adjacent outliers shield each other: they
+are only range-checked.
 
 Unusable guides: a guide buffer (albedo, normal, depth) that is zero everywhere is a missing
 render pass; the demodulated irradiance colour / (albedo + eps) of a zero albedo is up to 100
