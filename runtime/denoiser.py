@@ -28,7 +28,7 @@ import os
 import threading
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
@@ -357,11 +357,10 @@ class Denoiser:
         first = self._frame_index == 0
         t0 = time.perf_counter()
         try:
-            with deferred_signals(), self._kernel_errors():
-                if self._binding is not None:
-                    out = self._run_bound(feeds, first, hp, wp)
-                else:
-                    out = self._run_plain(feeds, first, hp, wp)
+            if self._binding is not None:
+                out = self._run_bound(feeds, first, hp, wp)
+            else:
+                out = self._run_plain(feeds, first, hp, wp)
         except BaseException as exc:
             if first:  # the history this frame was to start has not started
                 self._pending_reset = True
@@ -395,6 +394,12 @@ class Denoiser:
     def _kernel_errors(self) -> AbstractContextManager[None]:
         """Raise a fast kernel's exception here, after the run (runtime/fastops.py)."""
         return self._fastops.raise_kernel_errors() if self._fastops else nullcontext()
+
+    def _session_call(self, run: Callable[..., Any], *args: Any) -> Any:
+        """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
+        it returns, before any state is swapped: a failed frame leaves the history as it was."""
+        with deferred_signals(), self._kernel_errors():
+            return run(*args)
 
     def _prepare(
         self, buffers: Mapping[str, np.ndarray]
@@ -487,7 +492,7 @@ class Denoiser:
         for s in self.state_specs:
             inputs[s.input_name] = self._state[s.name]
         names = [OUTPUT] + [s.output_name for s in self.state_specs]
-        out, *states = self._session.run(names, inputs)
+        out, *states = self._session_call(self._session.run, names, inputs)
         self._check_output_shape(out.shape, hp, wp)
         bad = 0
         for s, value in zip(self.state_specs, states, strict=True):
@@ -518,7 +523,7 @@ class Denoiser:
             io.bind_ortvalue_output(s.output_name, following.value)
         out = np.empty((1, 3, hp, wp), np.float32)
         io.bind_ortvalue_output(OUTPUT, ort.OrtValue.ortvalue_from_numpy(out))  # written in place
-        self._session.run_with_iobinding(io)
+        self._session_call(self._session.run_with_iobinding, io)
         # On CPU check every state tensor (one cheap sum each); on a device only when the
         # output shows a problem, so that state stays on the device.
         check_state = self._device is None or _count_nonfinite(out) > 0

@@ -87,7 +87,11 @@ RULES: dict[str, Rule] = {
     "normal": Rule(-1.0, 1.0),
     "depth": Rule(0.0, DEPTH_MAX, posinf=DEPTH_MAX),
     "motion": Rule(
-        -MOTION_FRAMES, MOTION_FRAMES, MOTION_FRAMES, MOTION_FRAMES, -MOTION_FRAMES,
+        -MOTION_FRAMES,
+        MOTION_FRAMES,
+        MOTION_FRAMES,
+        MOTION_FRAMES,
+        -MOTION_FRAMES,
         frame_relative=True,
     ),  # fmt: skip
 }
@@ -209,9 +213,9 @@ class GuardReport:
     @property
     def changed(self) -> bool:
         """True when the guard changed the input or the output of this frame."""
-        return bool(
-            self.nonfinite or self.clamped or self.outliers or self.unusable
-        ) or bool(self.output_nonfinite)
+        return bool(self.nonfinite or self.clamped or self.outliers or self.unusable) or bool(
+            self.output_nonfinite
+        )
 
     def summary(self) -> str:
         """One line: what was fixed (empty when nothing was)."""

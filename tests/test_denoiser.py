@@ -46,7 +46,9 @@ def albedo_frames(n: int, h: int, w: int, seed: int = 1) -> list[np.ndarray]:
 def test_ema_matches_numpy_over_8_frames(ema: bytes, io_binding: bool) -> None:
     den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
     ref = EmaReference()
-    for i, (color, albedo) in enumerate(zip(frames(8, 64, 64), albedo_frames(8, 64, 64, 1), strict=True)):
+    for i, (color, albedo) in enumerate(
+        zip(frames(8, 64, 64), albedo_frames(8, 64, 64, 1), strict=True)
+    ):
         out = den.process({"color": color, "albedo": albedo})
         assert out.shape == (3, 64, 64) and out.dtype == np.float32
         np.testing.assert_allclose(out, ref.step(color, albedo, i == 0), **TOL)
@@ -104,7 +106,9 @@ def test_resolution_change_resets(ema: bytes, probe: bytes, io_binding: bool) ->
 def test_odd_size_padded_and_cropped(ema: bytes, io_binding: bool) -> None:
     den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
     ref = EmaReference()
-    for i, (color, albedo) in enumerate(zip(frames(8, 13, 17), albedo_frames(8, 13, 17, 1), strict=True)):
+    for i, (color, albedo) in enumerate(
+        zip(frames(8, 13, 17), albedo_frames(8, 13, 17, 1), strict=True)
+    ):
         batched = color[None] if i % 2 else color  # (1, C, H, W) is accepted too
         out = den.process({"color": batched, "albedo": albedo, "normal": np.zeros(3)})
         assert out.shape == (3, 13, 17) and out.flags.c_contiguous
@@ -201,7 +205,9 @@ def test_io_binding_equals_session_run(ema: bytes) -> None:
     for io_binding in (True, False):
         den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
         seq = []
-        for i, (c, a) in enumerate(zip(frames(8, 24, 20, 5), albedo_frames(8, 24, 20, 6), strict=True)):
+        for i, (c, a) in enumerate(
+            zip(frames(8, 24, 20, 5), albedo_frames(8, 24, 20, 6), strict=True)
+        ):
             if i == 3:
                 c = c.copy()
                 c[0, 1, 1] = np.nan
