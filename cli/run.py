@@ -117,10 +117,16 @@ def print_report(report: dict[str, Any], model: str, console: Console) -> None:
         if report["trmae"] is not None and np.isfinite(report["trmae"]):
             console.print(f"TRMAE ↓ {report['trmae']:.4f} (input {inp['trmae']:.4f})")
     t = report["timing_ms"]
+    where = f"{len(report['frames'])} frames {report['size'][1]}x{report['size'][0]} -> " + str(
+        Path(report["frames"][0]["output"]).parent
+    )
+    kept = report.get("skipped", 0)
+    if t["denoise"] is None:
+        console.print(f"{where}: all kept from an earlier run (--resume)", soft_wrap=True)
+        return
     console.print(
-        f"{len(report['frames'])} frames {report['size'][1]}x{report['size'][0]} -> "
-        f"{Path(report['frames'][0]['output']).parent}; median per frame: read {t['read']:.1f} ms,"
-        f" denoise {t['denoise']:.1f} ms, write {t['write']:.1f} ms",
+        f"{where}{f' ({kept} kept from an earlier run)' if kept else ''}; median per frame: "
+        f"read {t['read']:.1f} ms, denoise {t['denoise']:.1f} ms, write {t['write']:.1f} ms",
         soft_wrap=True,
     )
 

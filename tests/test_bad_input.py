@@ -185,11 +185,15 @@ def write_frame(path, rng, parts=False) -> None:
     OpenEXR.File(out).write(str(path))  # parts reuse R, G, B: read as rgb.R, albedo.R, ...
 
 
-def make_files(folder, numbers, parts=False) -> None:
+def make_files(folder, numbers, parts=False, refs=False) -> None:
+    """16 x 16 frames frame_NNNN.exr with every buffer (and ref_NNNN.exr: blurred colour)."""
     folder.mkdir()
     rng = np.random.default_rng(1)
     for n in numbers:
         write_frame(folder / f"frame_{n:04d}.exr", rng, parts)
+        if refs:
+            ref = {c: np.full((H, W), 0.5, np.float32) for c in "RGB"}
+            write_exr(folder / f"ref_{n:04d}.exr", ref, half=False)
 
 
 def run_cli(*args, path: str = "fast"):
