@@ -5,9 +5,14 @@ formats the report (a dict, the metrics JSON of one sequence) as it likes.
 
 Per frame the lean path does: read only the channels the backend needs (resolved once per
 sequence from the headers), one NaN/Inf pass per buffer (in the reader; the backend is told
-with `assume_finite=True`), process, one NaN/Inf check of the output, quantise once (half by
-default) and write that array; the float32 view of exactly that array is what is scored
-and previewed.
+with `assume_finite=True`; a `Denoiser` still guards ranges and outliers), process, one NaN/Inf
+check of the output, quantise once (half by default) and write that array; the float32 view of
+exactly that array is what is scored and previewed.
+
+Before the first frame: every header, the references, the output paths (no existing output
+replaced unless `overwrite`; kept with `resume`) and the output folder's writability are
+checked, and temp files a killed run left for these outputs are removed. Frame-number gaps
+reset the history. docs/reliability.md has every case.
 """
 
 from __future__ import annotations
