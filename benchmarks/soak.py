@@ -111,6 +111,7 @@ def soak(model: str, fast: bool, frames: int, size: tuple[int, int], bad_every: 
         "rss_first": statistics.mean(rss[:WINDOW]),
         "rss_last": statistics.mean(rss[-WINDOW:]),
         "rss_max": max(rss),
+        "ms_windows": [statistics.median(times[i : i + WINDOW]) for i in range(0, frames, WINDOW)],
         "all_finite": finite,
         "guard": {
             "nonfinite_pixels": totals.nonfinite_pixels,
@@ -160,6 +161,9 @@ def main() -> None:
             f"{g['nonfinite_pixels']} NaN px, {g['clamped']} clamped, {g['outliers']} outliers, "
             f"{g['unusable_frames']} unusable frames |"
         )
+    print(f"\nms/frame, median of each {WINDOW} frames in turn (load on the machine shows here):")
+    for r in results:
+        print(f"- {r['path']}: " + ", ".join(f"{v:.0f}" for v in r["ms_windows"]))
 
 
 if __name__ == "__main__":
