@@ -221,6 +221,12 @@ def run_sequence(
             rows.append(_row(i, path, out_path, None, skipped=True))
             on_frame()
             continue
+        if not done[i] and fed != i - 1 and i > segment:  # frames before it were kept:
+            backend.reset()  # rebuild the history from them (not timed, not written)
+            for j in range(max(segment, i - RESUME_WARMUP), i):
+                with reading():
+                    warm = plan.read(job.frames[j], index=j)
+                backend.process(warm.buffers, assume_finite=True)
         t0 = time.perf_counter()
         with reading():
             frame = plan.read(path, index=i)
@@ -230,13 +236,6 @@ def run_sequence(
             with reading():
                 view = _read_rgb(out_path)
         else:
-            if fed != i - 1 and i > segment:  # the frames before were kept: rebuild history
-                backend.reset()
-                for j in range(max(segment, i - RESUME_WARMUP), i):
-                    with reading():
-                        warm = plan.read(job.frames[j], index=j)
-                    backend.process(warm.buffers, assume_finite=True)
-                t1 = time.perf_counter()
             out = np.asarray(backend.process(frame.buffers, assume_finite=True), dtype=np.float32)
             fed = i
             if out.ndim == 4 and out.shape[0] == 1:
