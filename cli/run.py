@@ -271,6 +271,11 @@ def run(
                     f"{metrics_json}: --metrics-json is a folder, expected a file path"
                 )
             check_writable(metrics_json)  # now, not after every frame
+            if metrics_json.exists() and not (overwrite or resume):
+                raise InputError(
+                    f"{metrics_json}: exists; --overwrite replaces it (and existing outputs), "
+                    "--resume rewrites it for the resumed run"
+                )
         jobs, is_demo = _jobs(list(inputs or []), output, reference, demo)
         backend = load_backend(model, portable=portable, threads=threads)
         reports = []

@@ -111,8 +111,16 @@ def test_metrics_json_that_cannot_be_written_fails_before_any_frame(tmp_path):
     if sys.platform.startswith("linux"):  # a folder nobody (root included) can create files in
         line = one_error_line(invoke(seq, "-o", out, "--metrics-json", "/proc/m.json"))
         assert "/proc/m.json: cannot write in /proc" in line and not out.exists()
-    res = invoke(seq, "-o", out, "--metrics-json", tmp_path / "new" / "sub" / "m.json")
-    assert res.exit_code == 0 and (tmp_path / "new" / "sub" / "m.json").is_file()
+    js = tmp_path / "new" / "sub" / "m.json"
+    res = invoke(seq, "-o", out, "--metrics-json", js)
+    assert res.exit_code == 0 and js.is_file()
+    js.write_text("mine")  # an existing metrics file is an output like the others
+    assert "m.json: exists; --overwrite" in one_error_line(
+        invoke(seq, "-o", tmp_path / "o2", "--metrics-json", js)
+    )
+    assert js.read_text() == "mine" and not (tmp_path / "o2").exists()
+    assert invoke(seq, "-o", out, "--metrics-json", js, "--overwrite").exit_code == 0
+    assert json.loads(js.read_text())["frames"]
 
 
 def test_temp_files_of_a_killed_run_are_removed(tmp_path):
