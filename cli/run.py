@@ -17,14 +17,21 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from rtdenoise.cli.common import quiet_native_output, user_errors, warn, write_json
+from rtdenoise.cli.common import (
+    VersionOption,
+    one_line_warnings,
+    quiet_native_output,
+    user_errors,
+    warn,
+    write_json,
+)
 from rtdenoise.runtime.atomic import check_writable
 from rtdenoise.runtime.backend import Backend, load_backend
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
 from rtdenoise.runtime.memory import tune_allocator
 from rtdenoise.runtime.run import METRIC_KEYS, Job, check_out_dir, run_sequence
-from rtdenoise.runtime.sequence import find_frames
+from rtdenoise.runtime.sequence import find_frames, group_shots
 
 # The model used when --model is not given: the shipped AFN demo (Lee24).
 DEFAULT_MODEL = "demo:afn"
@@ -134,6 +141,7 @@ def print_report(report: dict[str, Any], model: str, console: Console) -> None:
 def _jobs(
     inputs: list[str], output: Path, reference: str | None, demo: bool
 ) -> tuple[list[Job], bool]:
+    """The sequences to denoise, and whether they are several (each into OUT/<shot>/)."""
     if demo:
         if inputs or reference:
             raise InputError("--demo takes no INPUT or --reference (it uses its own)")
@@ -145,9 +153,28 @@ def _jobs(
         return [Job(s.name, find_frames(s), None, output / s.name) for s in seqs], True
     if not inputs:
         raise InputError("give an INPUT sequence (folder, quoted glob or printf pattern) or --demo")
-    frames = find_frames(inputs)
-    name = inputs[0] if len(inputs) == 1 else f"{len(frames)} frames"
-    return [Job(name, frames, reference, output)], False
+    shots = group_shots(inputs)
+    if len(shots) == 1:
+        name = inputs[0] if len(inputs) == 1 else shots[0][0]
+        return [Job(name, find_frames(shots[0][1]), reference, output)], False
+    if reference is not None:
+        raise InputError(
+            f"--reference names the references of one shot, got {len(shots)} shots; "
+            "put ref_NNNN.exr beside each shot's frames instead"
+        )
+    return [Job(name, find_frames(specs), None, output / name) for name, specs in shots], True
+
+
+def _show_layout(value: str | None) -> None:
+    """`--show-layout`: print the layout file, to copy and edit, and exit."""
+    if value is None:
+        return
+    with user_errors():
+        path = get_layout(value).path
+        if path is None:
+            raise InputError(f"layout {value!r} has no file")
+        print(path.read_text(encoding="utf-8"), end="")
+    raise typer.Exit()
 
 
 @app.command(
@@ -160,14 +187,19 @@ def run(
         typer.Argument(
             metavar="INPUT",
             help="Frames: a folder (its `*.exr` except `ref_*`), a quoted glob (`'shots/f_*.exr'`)"
-            " or a printf pattern (`shots/f_%04d.exr`). Ordered by the last number in the name.",
+            " or a printf pattern (`shots/f_%04d.exr`). Ordered by the last number in the name. "
+            "Several = several shots, each its own sequence (state reset) into `OUT/<shot>/`; "
+            "EXR files listed one by one are one shot per folder.",
             show_default=False,
         ),
     ] = None,
     output: Annotated[
         Path | None,
         typer.Option(
-            "-o", "--output", help="Output folder (required): `OUT/<input name>.exr` (R,G,B)."
+            "-o",
+            "--output",
+            help="Output folder (required): `OUT/<input name>.exr` (R,G,B); "
+            "`OUT/<shot>/<input name>.exr` with several shots.",
         ),
     ] = None,
     model: Annotated[
@@ -181,7 +213,12 @@ def run(
     ] = DEFAULT_MODEL,
     layout: Annotated[
         str,
-        typer.Option("--layout", "-l", help="Channel layout: " + ", ".join(LAYOUTS) + "."),
+        typer.Option(
+            "--layout",
+            "-l",
+            help="Channel layout: a preset (" + ", ".join(LAYOUTS) + ") or a layout file "
+            "`my_renderer.toml` (docs/layouts.md; start from `--show-layout blender`).",
+        ),
     ] = "canonical",
     channel: Annotated[
         list[str] | None,
@@ -225,7 +262,8 @@ def run(
         ),
     ] = False,
     threads: Annotated[
-        int | None, typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads.")
+        int | None,
+        typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads (default: all)."),
     ] = None,
     overwrite: Annotated[
         bool,
@@ -239,6 +277,30 @@ def run(
             "16 frames before each to rebuild the temporal history.",
         ),
     ] = False,
+    provider: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--provider",
+            "-p",
+            metavar="NAME",
+            help="ONNX Runtime execution provider, in order of preference (repeatable): cpu "
+            "(default), cuda, tensorrt, dml, coreml, openvino or a full name "
+            "(`CUDAExecutionProvider`); CPU stays the fallback. CUDA and TensorRT need the "
+            "onnxruntime-gpu package, DirectML onnxruntime-directml.",
+        ),
+    ] = None,
+    show_layout: Annotated[
+        str | None,
+        typer.Option(
+            "--show-layout",
+            metavar="LAYOUT",
+            callback=_show_layout,
+            is_eager=True,
+            help="Print a layout file (a preset's name or a .toml path) and exit: "
+            "`denoise-run --show-layout blender > my_renderer.toml`, then edit.",
+        ),
+    ] = None,
+    version: VersionOption = False,
 ) -> None:
     """Denoise an EXR frame sequence with a real-time denoiser, frame after frame.
 
@@ -276,8 +338,8 @@ def run(
                     f"{metrics_json}: exists; --overwrite replaces it (and existing outputs), "
                     "--resume rewrites it for the resumed run"
                 )
-        jobs, is_demo = _jobs(list(inputs or []), output, reference, demo)
-        backend = load_backend(model, portable=portable, threads=threads)
+        jobs, several = _jobs(list(inputs or []), output, reference, demo)
+        backend = load_backend(model, portable=portable, threads=threads, providers=provider)
         reports = []
         for job in jobs:
             report = run_with_progress(
@@ -296,8 +358,8 @@ def run(
         if len(reports) > 1:
             print_overall(reports, model, out)
         if metrics_json is not None:
-            if is_demo:
-                payload: dict[str, Any] = {"model": model, "sequences": reports}
+            if several:
+                payload: dict[str, Any] = {"model": model, "layout": lay.name, "sequences": reports}
             else:
                 payload = {"model": model, "layout": lay.name, **reports[0]}
             write_json(metrics_json, payload)
@@ -318,6 +380,7 @@ def print_overall(reports: list[dict[str, Any]], model: str, console: Console) -
 
 def main() -> None:
     """Console script entry point."""
+    one_line_warnings()
     # A program denoising frame after frame: reuse large blocks instead of fresh mmaps that
     # page-fault on every frame (process-wide, so the CLI decides it, not the library).
     tune_allocator()

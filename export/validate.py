@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
+from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.runtime.denoiser import Denoiser
+from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -63,27 +64,3 @@ def validate(
             for frame, ref in zip(frames, reference, strict=True)
         ]
     return report
-
-
-def synthetic_frames(
-    inputs: Sequence[str], n: int, h: int, w: int, seed: int = 0
-) -> list[dict[str, np.ndarray]]:
-    """A moving sequence for when no real one is at hand: smooth scene, noisy color, 1 px pan."""
-    rng = np.random.default_rng(seed)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    frames = []
-    for t in range(n):
-        phase = xx + t
-        albedo = np.stack([0.5 + 0.4 * np.sin(phase / 7 + c) for c in range(3)]).astype(np.float32)
-        shading = (1.0 + np.cos(yy / 9)[None] * 0.5).astype(np.float32)
-        noise = rng.exponential(1.0, size=(3, h, w)).astype(np.float32)
-        buffers = {
-            "color": albedo * shading * noise,
-            "color_b": albedo * shading * rng.exponential(1.0, size=(3, h, w)).astype(np.float32),
-            "albedo": albedo,
-            "normal": np.stack([np.zeros_like(xx), np.zeros_like(xx), np.ones_like(xx)]),
-            "depth": (5.0 + yy / h)[None].astype(np.float32),
-            "motion": np.stack([np.ones_like(xx), np.zeros_like(xx)]).astype(np.float32),
-        }
-        frames.append({k: buffers[k] for k in inputs if k in BUFFER_CHANNELS})
-    return frames

@@ -59,6 +59,17 @@ class FamilyConfig:
         config.validate()
         return config
 
+    @classmethod
+    def of(cls, config: FamilyConfig | dict | None) -> FamilyConfig:
+        """`config` as a validated instance of this class (a dict or None goes through
+        `from_dict`); what a model's constructor calls."""
+        if isinstance(config, cls):
+            config.validate()
+            return config
+        if config is not None and not isinstance(config, dict):
+            raise TypeError(f"{cls.family} config must be a {cls.__name__} or a dict")
+        return cls.from_dict(config)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict (tuples as lists) that `from_dict` turns back into this config."""
         return {

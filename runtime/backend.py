@@ -7,7 +7,7 @@ or ``demo:<family>``) loads `rtdenoise.runtime.Denoiser`, imported lazily.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -57,10 +57,17 @@ class PassThrough:
         pass
 
 
-def load_backend(model: str, *, portable: bool = False, threads: int | None = None) -> Backend:
+def load_backend(
+    model: str,
+    *,
+    portable: bool = False,
+    threads: int | None = None,
+    providers: Sequence[str] | None = None,
+) -> Backend:
     """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
 
     portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
+    providers: ONNX Runtime execution providers in order of preference (None or empty: CPU).
     """
     if model.strip().lower() == "none":
         return PassThrough()
@@ -68,4 +75,6 @@ def load_backend(model: str, *, portable: bool = False, threads: int | None = No
         from .denoiser import Denoiser
     except ImportError as exc:
         raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
-    return Denoiser(model, fast_kernels=not portable, threads=threads)
+    return Denoiser(
+        model, fast_kernels=not portable, threads=threads, providers=list(providers or []) or None
+    )

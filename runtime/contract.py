@@ -52,6 +52,9 @@ BUFFER_CHANNELS: dict[str, int] = {
     "depth": 1,  # linear view depth
     "motion": 2,  # pixels, previous position = current + motion, x right, y down
 }
+# What the buffers mean to an augmentation (training crops, flips, brightness).
+RADIANCE_BUFFERS = ("color", "color_b")  # scale with the exposure
+SCREEN_XY_BUFFERS = ("motion", "normal")  # components 0, 1 are screen x, y: flip with the image
 # Per-sample data, (S, C, H, W) with S and C model-defined (graph input [1, S, C, H, W]).
 SAMPLES = "samples"
 BUFFER_RANK: dict[str, int] = {name: 4 for name in BUFFER_CHANNELS} | {SAMPLES: 5}

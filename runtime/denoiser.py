@@ -14,6 +14,10 @@ binding: frame t reads buffer A and writes buffer B, frame t+1 the reverse. With
 GPU execution provider the buffers are device memory, so state never crosses to the
 host; on CPU they are numpy arrays the session reads and writes in place.
 
+Buffers come planar, (C, H, W) (or batched, (1, C, H, W)), or interleaved as a renderer holds
+them, (H, W, C) with an optional alpha channel that is ignored ((H, W) for one channel), in
+float32 or float16; the output follows the layout of `color`, or fills the caller's `out`.
+
 Fast kernels run as Python custom ops inside `session.run`; an exception there would abort
 the process, so the run is wrapped in `fastops.raise_kernel_errors()` (the kernel's error is
 raised after the run) and in `deferred_signals()` (Ctrl-C is raised after the run).
@@ -70,6 +74,7 @@ _DEVICE_OF_PROVIDER = {
     "DmlExecutionProvider": "dml",
 }
 _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
+HALF_MAX = 65504.0  # the largest float16: an `out` in half float is clamped to it
 
 
 def resolve_model(spec: str | os.PathLike) -> Path:
@@ -123,7 +128,9 @@ def _register_fast_kernels(options: ort.SessionOptions) -> Any:
     except ModuleNotFoundError as exc:
         if exc.name and exc.name.split(".")[-1] in ("fastops", "onnxruntime_extensions", "numba"):
             warnings.warn(
-                f"fast kernels unavailable ({exc}); custom ops run on the portable path",
+                f"fast kernels unavailable ({exc}): the custom ops run their portable ONNX "
+                "bodies, slower; numba and onnxruntime-extensions have wheels for CPython "
+                "3.10-3.13 on Linux x86_64/aarch64, macOS arm64 and Windows x64",
                 RuntimeWarning,
                 stacklevel=3,
             )
@@ -153,6 +160,42 @@ def _pad_edge(a: np.ndarray, hp: int, wp: int) -> np.ndarray:
     out[..., :h, w:] = a[..., :, w - 1 : w]
     out[..., h:, :] = out[..., h - 1 : h, :]
     return out
+
+
+def _is_interleaved(a: np.ndarray, channels: int | None, channels_last: bool | None) -> bool:
+    """Whether `a` is (H, W, C), (H, W, C + 1) or, for C = 1, (H, W); planar wins a tie."""
+    if channels is None or channels_last is False:
+        return False
+    fits = (a.ndim == 3 and a.shape[-1] in (channels, channels + 1)) or (
+        a.ndim == 2 and channels == 1
+    )
+    if channels_last:
+        return fits
+    planar = a.ndim in (3, 4) and a.shape[-3] == channels
+    return fits and not planar
+
+
+def _output_view(out: np.ndarray, size: tuple[int, int], channels_last: bool | None) -> np.ndarray:
+    """The (3, H, W) view of a caller's output array that `_store` fills; InputError if unfit."""
+    h, w = size
+    if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float16):
+        kind = out.dtype if isinstance(out, np.ndarray) else type(out).__name__
+        raise InputError(f"out must be a float32 or float16 numpy array, got {kind}")
+    if out.shape[:2] == (h, w) and _is_interleaved(out, 3, channels_last):
+        return out[..., :3].transpose(2, 0, 1)
+    if out.shape == (3, h, w) and channels_last is not True:
+        return out
+    raise InputError(
+        f"out has shape {out.shape}; expected (3, {h}, {w}), ({h}, {w}, 3) or ({h}, {w}, 4)"
+    )
+
+
+def _store(target: np.ndarray, planar: np.ndarray) -> None:
+    """Write a (3, H, W) float32 frame into the caller's view, clamping to the half range."""
+    if target.dtype == np.float16:
+        np.clip(planar, -HALF_MAX, HALF_MAX, out=target, casting="same_kind")
+    else:
+        np.copyto(target, planar)
 
 
 class _Slot:
@@ -326,10 +369,15 @@ class Denoiser:
         *,
         reset: bool = False,
         assume_finite: bool = False,
+        out: np.ndarray | None = None,
+        channels_last: bool | None = None,
     ) -> np.ndarray:
-        """Denoise one frame. buffers: name -> (C, H, W) or (1, C, H, W) float32.
+        """Denoise one frame. buffers: name -> array, planar (C, H, W) or (1, C, H, W), or
+        interleaved (H, W, C), (H, W, C + 1) with alpha ignored, or (H, W) when C = 1; float32
+        or float16 (other real types are converted).
 
-        Extra buffers are ignored. `reset=True` marks a camera cut. Returns (3, H, W) float32,
+        Extra buffers are ignored. `reset=True` marks a camera cut. Returns the frame, linear
+        HDR float32, (3, H, W), or (H, W, 3) when `color` is interleaved; or `out`, filled;
         always finite. Every buffer passes the input guard first (`rtdenoise.runtime.guard`:
         NaN/Inf replaced, values clamped to the buffer's range, isolated colour outliers
         removed, all in a copy); `last_guard` reports what it did, `last_nonfinite` counts the
@@ -338,13 +386,25 @@ class Denoiser:
         does the frame after an output with NaN/Inf (replaced by 0). An exception (a kernel's,
         Ctrl-C) leaves the history as it was before the call.
         assume_finite: accepted for callers of earlier versions; the guard runs regardless.
+        out: the caller's output array, (3, H, W) or (H, W, 3) / (H, W, 4) (alpha left as it
+            is), float32 or float16 (clamped to the half range); written in place, returned.
+        channels_last: True: every array is interleaved; False: planar; None (default): each
+            array's shape tells (one that fits both, an interleaved frame C pixels tall, is
+            read as planar).
         """
         with self._lock:
-            return self._process(buffers, reset)
+            return self._process(buffers, reset, out, channels_last)
 
-    def _process(self, buffers: Mapping[str, np.ndarray], reset: bool) -> np.ndarray:
+    def _process(
+        self,
+        buffers: Mapping[str, np.ndarray],
+        reset: bool,
+        out: np.ndarray | None,
+        channels_last: bool | None,
+    ) -> np.ndarray:
         start = time.perf_counter()
-        feeds, (h, w), (hp, wp), report = self._prepare(buffers)
+        feeds, (h, w), (hp, wp), report = self._prepare(buffers, channels_last)
+        target = None if out is None else _output_view(out, (h, w), channels_last)
         if (h, w) != self._size and self._size is not None:
             self._restart(f"size change: {self._size[0]}x{self._size[1]} -> {h}x{w}")
         if reset:
@@ -358,9 +418,9 @@ class Denoiser:
         t0 = time.perf_counter()
         try:
             if self._binding is not None:
-                out = self._run_bound(feeds, first, hp, wp)
+                result = self._run_bound(feeds, first, hp, wp)
             else:
-                out = self._run_plain(feeds, first, hp, wp)
+                result = self._run_plain(feeds, first, hp, wp)
         except BaseException as exc:
             if first:  # the history this frame was to start has not started
                 self._pending_reset = True
@@ -373,16 +433,22 @@ class Denoiser:
         self.last_run_ms = (time.perf_counter() - t0) * 1e3
         self._frame_index += 1
         self.frames_processed += 1
-        result = out[0] if (hp, wp) == (h, w) else np.ascontiguousarray(out[0, :, :h, :w])
-        bad = replace_nonfinite("output", result)
+        frame = result[0] if (hp, wp) == (h, w) else result[0, :, :h, :w]
+        bad = replace_nonfinite("output", frame)  # in place: `result` is this call's own array
         if bad is not None:
             report.output_nonfinite = int(bad.sum())
             self._restart("non-finite output in the previous frame")
         if report.unusable:
             self._restart("previous frame unusable: " + ", ".join(report.unusable))
         self._note_guard(report)
+        if target is not None:
+            _store(target, frame)
+        elif "color" in buffers and _is_interleaved(np.asarray(buffers["color"]), 3, channels_last):
+            result = np.ascontiguousarray(frame.transpose(1, 2, 0))
+        else:
+            result = frame if (hp, wp) == (h, w) else np.ascontiguousarray(frame)
         self.last_total_ms = (time.perf_counter() - start) * 1e3
-        return result
+        return out if out is not None else result
 
     def _note_guard(self, report: GuardReport) -> None:
         self.last_guard = report
@@ -402,9 +468,12 @@ class Denoiser:
             return run(*args)
 
     def _prepare(
-        self, buffers: Mapping[str, np.ndarray]
+        self,
+        buffers: Mapping[str, np.ndarray],
+        channels_last: bool | None = None,
     ) -> tuple[dict[str, np.ndarray], tuple[int, int], tuple[int, int], GuardReport]:
-        """Validate, guard and pad the buffers the model reads."""
+        """Validate, guard and pad the buffers the model reads; interleaved and half-float
+        buffers become planar float32 in one copy, which the guard may then fix in place."""
         if not isinstance(buffers, Mapping):
             raise InputError(f"process() takes a dict name -> array, got {type(buffers).__name__}")
         specs = self._contract.buffers
@@ -418,7 +487,7 @@ class Denoiser:
         arrays: dict[str, np.ndarray] = {}
         size: tuple[int, int] | None = None
         for spec in specs:
-            a = self._check_shape(spec, np.asarray(buffers[spec.name]))
+            a = self._check_shape(spec, np.asarray(buffers[spec.name]), channels_last)
             if size is None:
                 size, first = a.shape[-2:], spec.name
             elif a.shape[-2:] != size:
@@ -447,10 +516,15 @@ class Denoiser:
         feeds = {name: _pad_edge(a, hp, wp) for name, a in guarded.items()}
         return feeds, (h, w), (hp, wp), report
 
-    def _check_shape(self, spec: BufferSpec, a: np.ndarray) -> np.ndarray:
-        """(C, H, W) or (1, C, H, W) [rank 5: (S, C, H, W) or (1, S, C, H, W)] -> batched view."""
+    def _check_shape(
+        self, spec: BufferSpec, a: np.ndarray, channels_last: bool | None = None
+    ) -> np.ndarray:
+        """(C, H, W) or (1, C, H, W) [rank 5: (S, C, H, W) or (1, S, C, H, W)], or interleaved
+        (H, W, C[+1]) / (H, W) -> batched planar view."""
         given = a.shape
         good = a.dtype.kind in "fiu"
+        if good and spec.rank == 4 and _is_interleaved(a, spec.channels, channels_last):
+            a = (a[..., None] if a.ndim == 2 else a[..., : spec.channels]).transpose(2, 0, 1)
         if good and a.ndim == spec.rank - 1:
             a = a[None]
         good = good and a.ndim == spec.rank and a.shape[0] == 1
@@ -458,9 +532,10 @@ class Denoiser:
         good = good and min(a.shape[-2:], default=0) > 0
         if not good:
             batched = spec.expected.replace("(", "(1, ", 1)
+            interleaved = "(H, W)" if spec.channels == 1 else f"(H, W, {spec.channels}[+alpha])"
             raise InputError(
                 f"buffer {spec.name!r} has shape {given} and dtype {a.dtype}; expected "
-                f"{spec.expected} or {batched} float32"
+                f"{spec.expected}, {batched} or {interleaved}, float32 or float16"
             )
         return a
 

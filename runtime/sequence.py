@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .contract import BUFFER_CHANNELS
 from .errors import InputError
 from .exr import read_exr, read_exr_header, write_exr
 from .guard import replace_nonfinite
@@ -135,6 +136,42 @@ def find_frames(spec: Spec | Sequence[Spec]) -> list[Path]:
             raise InputError(f"{os.fspath(s)}: no EXR frames found")
         files.extend(found)
     return _sorted_unique(files, "frames")
+
+
+def group_shots(specs: Sequence[Spec]) -> list[tuple[str, list[Spec]]]:
+    """Several inputs -> shots, (name, specs) each, in the order given.
+
+    Each folder, glob or printf pattern is one shot; EXR files given one by one (e.g. an
+    unquoted glob the shell expanded) are one shot per folder. A shot is named after its
+    folder, with as many parent folders as it takes to tell it from the others (``a/render``
+    and ``b/render``, but ``c``); InputError for two shots in one folder (two patterns).
+    """
+    groups: dict[tuple[str, Path], list[Spec]] = {}
+    for spec in specs:
+        path = Path(os.fspath(spec))
+        if path.is_dir():
+            key = ("folder", path.resolve())
+        elif path.is_file():
+            key = ("folder", path.parent.resolve())
+        else:  # a glob or printf pattern: a shot of its own
+            key = (os.fspath(spec), path.parent.resolve())
+        groups.setdefault(key, []).append(spec)
+    folders = [folder.parts for _, folder in groups]
+    seen: dict[tuple[str, ...], Spec] = {}
+    for parts, shot in zip(folders, groups.values(), strict=True):
+        if parts in seen:
+            raise InputError(
+                f"{os.fspath(seen[parts])} and {os.fspath(shot[0])} are two shots in one folder; "
+                "give each shot its own folder, or run them one at a time"
+            )
+        seen[parts] = shot[0]
+    names = []
+    for parts in folders:  # the shortest trailing part of its path that no other shot shares
+        k = 1
+        while k < len(parts) and any(q[-k:] == parts[-k:] for q in folders if q != parts):
+            k += 1
+        names.append("/".join(parts[-k:]))
+    return list(zip(names, groups.values(), strict=True))
 
 
 def reference_index(spec: Spec) -> dict[int | None, Path]:
@@ -361,7 +398,7 @@ def _reference_channels(names: Collection[str], layout: Layout | str, path: Path
     """R,G,B of a reference, else the channels of the layout's `color`."""
     if all(c in names for c in "RGB"):
         return list("RGB")
-    only_color = {b: "none" for b in ("color_b", "albedo", "normal", "depth", "motion")}
+    only_color = {b: "none" for b in BUFFER_CHANNELS if b != "color"}
     return resolve_channels(names, _layout(layout), only_color, source=str(path))["color"]
 
 
@@ -416,10 +453,17 @@ def iter_sequence(
     spec: Spec | Sequence[Spec],
     layout: Layout | str = "canonical",
     overrides: Mapping[str, str] | None = None,
+    *,
+    buffers: Collection[str] | None = None,
 ) -> Iterator[Frame]:
-    """Frames of a sequence in order, after checking all headers (channels, one size)."""
+    """Frames of a sequence in order, after checking all headers (channels, one size).
+
+    spec: a folder, glob, printf pattern or file (or a list). layout: a preset name, a layout
+    file (.toml) or a Layout. buffers: read only these (e.g. `Denoiser.required_buffers`),
+    each of which every frame must have; None: every buffer the layout finds.
+    """
     paths = find_frames(spec)
-    plan = plan_sequence(paths, layout, overrides)
+    plan = plan_sequence(paths, layout, overrides, buffers=buffers)
     for i, p in enumerate(paths):
         yield plan.read(p, index=i)
 

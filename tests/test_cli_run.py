@@ -419,3 +419,79 @@ def test_channels_resolved_once_per_sequence(tmp_path, monkeypatch):
     frames = [r for r in reads if r[0].startswith("frame_")]
     assert frames == [(f"frame_{k:04d}.exr", ["R", "G", "B"]) for k in (1, 2, 3, 4)]
     assert all(c == list("RGB") for name, c in reads if name.startswith("ref_"))
+
+
+def test_several_inputs_are_several_shots(tmp_path):
+    """Two folders with the same frame numbers: two sequences (state reset each), each into
+    OUT/<shot>/, one JSON with both; same folder names are told apart by their parents."""
+    shots = [tmp_path / "a" / "render", tmp_path / "b" / "render", tmp_path / "c"]
+    colors = {}
+    for i, s in enumerate(shots):
+        s.mkdir(parents=True)
+        colors[s], _ = make_sequence(s, n=2, seed=i)
+    out, js = tmp_path / "out", tmp_path / "m.json"
+    glob = str(shots[2] / "frame_*.exr")
+    res = invoke(shots[0], shots[1], glob, "-o", out, "--metrics-json", js)
+    assert res.exit_code == 0, res.output
+    names = ["a/render", "b/render", "c"]
+    assert [s["name"] for s in json.loads(js.read_text())["sequences"]] == names
+    for name, s in zip(names, shots, strict=True):
+        got = rgb(out / name / "frame_0002.exr")
+        np.testing.assert_allclose(got, colors[s][1], rtol=2**-10, atol=1e-6)
+    assert "over 3 sequences" in res.stdout
+
+
+def test_files_listed_one_by_one_are_one_shot(tmp_path):
+    """An unquoted glob the shell expanded: the files of one folder stay one sequence."""
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    make_sequence(seq, n=3)
+    files = sorted(p for p in seq.glob("frame_*.exr"))
+    res = invoke(*files, "-o", tmp_path / "out")
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [p.name for p in files]
+
+
+def test_several_shots_refuse_one_reference_and_two_patterns_in_a_folder(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for s in (a, b):
+        s.mkdir()
+        make_sequence(s, n=1)
+    res = invoke(a, b, "-o", tmp_path / "o", "--reference", a)
+    assert res.exit_code == 2 and "--reference names the references of one shot" in res.stderr
+    res = invoke(a / "frame_*.exr", a / "frame_%04d.exr", "-o", tmp_path / "o")
+    assert res.exit_code == 2 and "are two shots in one folder" in res.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_provider_choice(tmp_path):
+    from contract_models import ema_model
+
+    seq, model = tmp_path / "seq", tmp_path / "ema.onnx"
+    seq.mkdir()
+    make_sequence(seq, n=1, refs=False)
+    model.write_bytes(ema_model())
+    res = invoke(seq, "-o", tmp_path / "out", "--model", model, "--provider", "cpu")
+    assert res.exit_code == 0, res.output
+    res = invoke(seq, "-o", tmp_path / "o2", "--model", model, "-p", "NopeExecutionProvider")
+    assert res.exit_code == 2
+    assert "execution provider 'NopeExecutionProvider' is not available" in res.stderr
+    assert "CPUExecutionProvider" in res.stderr and res.stderr.count("\n") == 1
+
+
+def test_layout_file_and_show_layout(tmp_path):
+    """`--show-layout blender` prints the preset; an edited copy is a `--layout` file."""
+    res = invoke("--show-layout", "blender")
+    assert res.exit_code == 0 and "[buffers.motion]" in res.stdout
+    text = res.stdout.replace('layers = ["Noisy Image", "Combined"]', 'layers = ["beauty"]')
+    mine = tmp_path / "my_renderer.toml"
+    mine.write_text(text)
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    noisy = np.random.default_rng(0).random((3, H, W), dtype=np.float32)
+    write_exr(seq / "f_0001.exr", {f"beauty.{c}": noisy[i] for i, c in enumerate("RGB")})
+    res = invoke(seq, "-o", tmp_path / "out", "--layout", mine)
+    assert res.exit_code == 0, res.output
+    np.testing.assert_allclose(rgb(tmp_path / "out" / "f_0001.exr"), noisy, rtol=2**-10, atol=1e-6)
+    res = invoke(seq, "-o", tmp_path / "o2", "--layout", tmp_path / "missing.toml")
+    assert res.exit_code == 2 and "missing.toml: no such layout file" in res.stderr
