@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -130,18 +131,16 @@ def test_kernel_exceptions_and_ctrl_c_become_python_exceptions():
         ("value", "RuntimeError", "ValueError: the kernel's own error"),
     ]:
         caught = result[mode]["caught"]
-        assert caught[0] == name and f"fast kernel WeightSharingFilter failed: {text}" in caught[1]
+        assert caught[0] == name and re.search(rf"fast kernel \w+ failed: {text}", caught[1])
         assert "inference failed on frame 2" in caught[1]
     assert result["sigint"]["caught"] == ["KeyboardInterrupt", ""]
     for mode in ("memory", "value", "sigint"):
         assert result[mode]["same"], mode  # history intact: the retry equals a clean run
         assert result[mode]["frames"] == 3 and result[mode]["index"] == 3
-    assert result["host"] == {
-        "unchecked_nan": True,
-        "error": ["fast kernel WeightSharingFilter failed: ValueError: the kernel's own error",
-                  "ValueError"],
-        "good": True,
-    }  # fmt: skip
+    host = result["host"]
+    assert host["unchecked_nan"] and host["good"] and host["error"][1] == "ValueError"
+    assert re.fullmatch(r"fast kernel \w+ failed: ValueError: the kernel's own error",
+                        host["error"][0])  # fmt: skip
 
 
 def make_sequence(folder: Path, n: int) -> list[Path]:
@@ -179,11 +178,28 @@ SCRIPT_CLI = PATCH + textwrap.dedent(
 )
 
 
+def kernel_calls_per_frame(model: str) -> int:
+    from rtdenoise.runtime import Denoiser, fastops
+
+    den = Denoiser(model, threads=1)
+    before = sum(fastops.CALLS.values())
+    den.process(make_frame_buffers())
+    return sum(fastops.CALLS.values()) - before
+
+
+def make_frame_buffers() -> dict[str, np.ndarray]:
+    from rtdenoise.runtime.sequence import read_frame
+
+    return read_frame(sorted(sample_sequences()[0].glob("frame_*.exr"))[0]).buffers
+
+
 def test_ctrl_c_inside_a_kernel_exits_130_with_complete_files(tmp_path):
     frames = make_sequence(tmp_path / "seq", 4)
     out = tmp_path / "out"
-    # demo:wskp makes 2 kernel calls per frame: Ctrl-C arrives inside the 3rd frame's first
-    proc = _run(SCRIPT_CLI, str(tmp_path / "seq"), str(out), "4")
+    calls = kernel_calls_per_frame("demo:wskp")
+    assert calls >= 2
+    # Ctrl-C arrives inside the third frame's first kernel
+    proc = _run(SCRIPT_CLI, str(tmp_path / "seq"), str(out), str(2 * calls))
     assert proc.returncode == 130, proc.stderr[-2000:]
     assert check_outputs(out, frames) == ["frame_0000.exr", "frame_0001.exr"]
     assert "Traceback" not in proc.stderr
@@ -205,6 +221,8 @@ def test_ctrl_c_at_any_time_exits_130_with_complete_files(tmp_path, delay):
     if proc.poll() is None:
         os.kill(proc.pid, signal.SIGINT)
     _, stderr = proc.communicate(timeout=120)
-    assert proc.returncode == 130, stderr[-2000:]  # 134 (SIGABRT) when it hit a kernel
+    # 130; or killed by the signal (-2, which a shell also shows as 130) when it came after the
+    # CLI had returned; 134 (SIGABRT) when it hit a kernel before the fix
+    assert proc.returncode in (130, -signal.SIGINT), stderr[-2000:]
     names = check_outputs(out, frames)
-    assert names == [p.name for p in frames[: len(names)]] and len(names) < len(frames)
+    assert names == [p.name for p in frames[: len(names)]]
