@@ -8,7 +8,10 @@ scaled up to `--size`), and every `--bad-every` frames a broken one (NaN block, 
 firefly, zero albedo, wild motion, in turn), so that the guard and the resets are soaked too.
 
 Reported per path: median time per frame and resident set size (RSS, from /proc/self/statm)
-over the first 100 and the last 100 frames, and the guard's totals. Linux only (RSS).
+over the first 100 and the last 100 frames, the guard's totals, and "aged / fresh": after the
+run, the same frames alternately through the long-running instance and a new one (the load
+on a shared machine hits both alike, so their ratio is what the run's age costs). Linux only
+(RSS).
 
     . .venv/bin/activate
     python benchmarks/soak.py                       # demo:afn, 1000 frames 128x128, both paths
@@ -30,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 WINDOW = 100
+AB_FRAMES = 50  # aged vs fresh: 50 warm-up pairs, then 50 measured pairs
 
 
 def rss_mb() -> float:
@@ -80,7 +84,14 @@ def broken(b: dict[str, np.ndarray], k: int) -> dict[str, np.ndarray]:
     return b
 
 
-def soak(model: str, fast: bool, frames: int, size: tuple[int, int], bad_every: int) -> dict:
+def soak(
+    model: str,
+    fast: bool,
+    frames: int,
+    size: tuple[int, int],
+    bad_every: int,
+    threads: int | None = None,
+) -> dict:
     """Run one path in this process; the measurements as a dict."""
     from rtdenoise.runtime import Denoiser
 
@@ -88,7 +99,7 @@ def soak(model: str, fast: bool, frames: int, size: tuple[int, int], bad_every: 
     rng = np.random.default_rng(0)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the fast kernels must be there
-        den = Denoiser(model, fast_kernels=fast, threads=None)
+        den = Denoiser(model, fast_kernels=fast, threads=threads)
     times, rss, finite = [], [], True
     for t in range(frames):
         b = dict(buffers[t % len(buffers)])
@@ -100,8 +111,21 @@ def soak(model: str, fast: bool, frames: int, size: tuple[int, int], bad_every: 
         times.append((time.perf_counter() - t0) * 1e3)
         finite = finite and bool(np.isfinite(out).all())
         rss.append(rss_mb())
+    # Aged vs fresh, interleaved (A B A B ...): the load on the machine hits both alike, so
+    # their ratio shows whether the long-running instance got slower than a new one.
+    fresh = Denoiser(model, fast_kernels=fast, threads=threads)
+    aged_ms, fresh_ms = [], []
+    for t in range(frames, frames + 2 * AB_FRAMES):
+        b = dict(buffers[t % len(buffers)])
+        b["color"] = refs[t % len(refs)] * rng.exponential(1.0, refs[0].shape).astype(np.float32)
+        for instance, record in ((den, aged_ms), (fresh, fresh_ms)):
+            t0 = time.perf_counter()
+            instance.process(b)
+            record.append((time.perf_counter() - t0) * 1e3)
     totals = den.guard_totals
     return {
+        "ms_aged": statistics.median(aged_ms[AB_FRAMES:]),  # the fresh one warmed up first
+        "ms_fresh": statistics.median(fresh_ms[AB_FRAMES:]),
         "model": model,
         "path": "fast" if fast else "portable",
         "frames": frames,
@@ -129,13 +153,15 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=1000)
     ap.add_argument("--size", default="128x128", help="WxH")
     ap.add_argument("--bad-every", type=int, default=50, help="a broken frame every N (0: none)")
+    ap.add_argument("--threads", type=int, help="ONNX Runtime threads (default: all cores)")
     ap.add_argument("--path", choices=["fast", "portable"], help="run one path here (JSON out)")
     args = ap.parse_args()
     w, h = (int(v) for v in args.size.lower().split("x"))
     if args.frames < 2 * WINDOW:
         ap.error(f"--frames must be >= {2 * WINDOW}")
     if args.path:
-        result = soak(args.model, args.path == "fast", args.frames, (h, w), args.bad_every)
+        fast = args.path == "fast"
+        result = soak(args.model, fast, args.frames, (h, w), args.bad_every, args.threads)
         print(json.dumps(result))
         return
     results = []
@@ -143,20 +169,22 @@ def main() -> None:
         cmd = [sys.executable, __file__, "--path", path, "--model", args.model]
         cmd += ["--frames", str(args.frames), "--size", args.size]
         cmd += ["--bad-every", str(args.bad_every)]
+        cmd += ["--threads", str(args.threads)] if args.threads else []
         proc = subprocess.run(cmd, capture_output=True, text=True, check=True)
         results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
     r0 = results[0]
     print(
         f"{r0['model']}, {r0['frames']} frames {w}x{h}, a broken frame every "
-        f"{args.bad_every}; first / last {WINDOW} frames\n"
+        f"{args.bad_every}, threads {args.threads or 'all'}; first / last {WINDOW} frames\n"
     )
-    print("| path | ms/frame first | ms/frame last | RSS MiB first | RSS MiB last | RSS max |"
-          " all finite | guard |")  # fmt: skip
-    print("|---|---:|---:|---:|---:|---:|---|---|")
+    print("| path | ms/frame first | ms/frame last | aged / fresh | RSS MiB first | RSS MiB last |"
+          " RSS max | all finite | guard |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|---|---|")
     for r in results:
         g = r["guard"]
         print(
-            f"| {r['path']} | {r['ms_first']:.1f} | {r['ms_last']:.1f} | {r['rss_first']:.0f} | "
+            f"| {r['path']} | {r['ms_first']:.1f} | {r['ms_last']:.1f} | "
+            f"{r['ms_aged']:.1f} / {r['ms_fresh']:.1f} | {r['rss_first']:.0f} | "
             f"{r['rss_last']:.0f} | {r['rss_max']:.0f} | {r['all_finite']} | "
             f"{g['nonfinite_pixels']} NaN px, {g['clamped']} clamped, {g['outliers']} outliers, "
             f"{g['unusable_frames']} unusable frames |"
