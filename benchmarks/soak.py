@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 WINDOW = 100
-AB_FRAMES = 50  # aged vs fresh: 50 warm-up pairs, then 50 measured pairs
+AB_FRAMES = 50  # aged vs fresh: 2 x 50 pairs of frames, the last 50 measured
 
 
 def rss_mb() -> float:
