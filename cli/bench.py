@@ -114,6 +114,61 @@ def bench_model(
         json_path.write_text(json.dumps(payload, indent=2))
 
 
+@app.command("stages")
+def bench_stages(
+    model: Annotated[
+        str,
+        typer.Argument(help="demo:<family> (its shipped ONNX) or a checkpoint (.pt, exported)."),
+    ],
+    size: Annotated[str, typer.Option(help="Frame size WIDTHxHEIGHT.")] = "1280x720",
+    repeats: Annotated[int, typer.Option(help="Timed frames (after one warm-up frame).")] = 3,
+    threads: Threads = None,
+    json_path: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
+) -> None:
+    """Time each stage of one frame (regression, U-Net, filter, backward + Adam, other) in
+    PyTorch eager and ONNX Runtime with the fast kernels (its node profiler), and the whole
+    frame in ORT portable, in one run, state fed back. For models that mark their stages
+    (crossreg); medians over REPEATS frames."""
+    with user_errors(extra="bench"):
+        w, h = parse_size(size)
+        from rtdenoise.export.onnx_export import export_model
+        from rtdenoise.export.stage_bench import STAGES, benchmark_stages
+        from rtdenoise.models.checkpoint import load_checkpoint
+        from rtdenoise.shipped import demo_model
+
+        from .export import resolve_checkpoint
+
+        net, _meta = load_checkpoint(resolve_checkpoint(model))
+        pad = net.pad_multiple
+        h, w = -(-h // pad) * pad, -(-w // pad) * pad
+        with console.status("benchmarking") as status:
+            if model.startswith("demo:"):
+                onnx_bytes = demo_model(model.split(":", 1)[1], ".onnx").read_bytes()
+            else:
+                status.update("exporting")
+                onnx_bytes = export_model(net).SerializeToString()
+            result = benchmark_stages(
+                net,
+                onnx_bytes,
+                (h, w),
+                repeats=repeats,
+                threads=threads,
+                progress=lambda msg: status.update(f"benchmarking: {msg}"),
+            )
+    table = Table(title=f"{net.family} at {w}x{h}, median ms per frame ({repeats} frames)")
+    table.add_column("stage")
+    for path in result:
+        table.add_column(LABELS[path], justify="right")
+    for stage in STAGES:
+        cells = [result[p]["stages"].get(stage) for p in result]
+        table.add_row(stage, *("" if c is None else f"{c:.0f}" for c in cells))
+    table.add_row("whole frame", *(f"{result[p]['total']:.0f}" for p in result))
+    console.print(table)
+    if json_path:
+        payload = {"family": net.family, "size": [h, w], "repeats": repeats, "paths": result}
+        json_path.write_text(json.dumps(payload, indent=2))
+
+
 @app.command("op")
 def bench_one_op(
     op: Annotated[str, typer.Argument(help="Custom op name, e.g. KernelApply.")],

@@ -301,6 +301,20 @@ def run(
         ),
     ] = None,
     version: VersionOption = False,
+    online: Annotated[
+        bool,
+        typer.Option(
+            "--online/--no-online",
+            help="A model that learns while it runs (e.g. crossreg) takes its update step "
+            "(default), or keeps its weights frozen.",
+        ),
+    ] = True,
+    learn_every: Annotated[
+        int,
+        typer.Option(
+            "--learn-every", min=1, help="Online learning: update on every N-th frame only."
+        ),
+    ] = 1,
 ) -> None:
     """Denoise an EXR frame sequence with a real-time denoiser, frame after frame.
 
@@ -339,7 +353,14 @@ def run(
                     "--resume rewrites it for the resumed run"
                 )
         jobs, several = _jobs(list(inputs or []), output, reference, demo)
-        backend = load_backend(model, portable=portable, threads=threads, providers=provider)
+        backend = load_backend(
+            model,
+            portable=portable,
+            threads=threads,
+            providers=provider,
+            learn=online,
+            learn_every=learn_every,
+        )
         reports = []
         for job in jobs:
             report = run_with_progress(
@@ -353,7 +374,10 @@ def run(
                 overwrite=overwrite,
                 resume=resume,
             )
+            report["online"] = online_summary(backend)
             print_report(report, model, out)
+            if report["online"]:
+                print_online(report["online"], out)
             reports.append(report)
         if len(reports) > 1:
             print_overall(reports, model, out)
@@ -363,6 +387,29 @@ def run(
             else:
                 payload = {"model": model, "layout": lay.name, **reports[0]}
             write_json(metrics_json, payload)
+
+
+def online_summary(backend: Backend) -> dict[str, Any] | None:
+    """Steps taken and last loss of a model that learns while it runs (None otherwise)."""
+    spec = getattr(backend, "online", None)
+    if not spec:
+        return None
+    summary: dict[str, Any] = {"learn": backend.learn, "learn_every": backend.learn_every}
+    for key in ("step", "loss"):
+        if spec.get(key):
+            summary[key] = float(backend.state_value(spec[key]).ravel()[0])
+    return summary
+
+
+def print_online(summary: dict[str, Any], console: Console) -> None:
+    if not summary["learn"]:
+        console.print("online learning off (--no-online): weights frozen at the model's own")
+        return
+    every = f" (every {summary['learn_every']} frames)" if summary["learn_every"] > 1 else ""
+    console.print(
+        f"online learning{every}: {summary.get('step', 0):.0f} update steps in this sequence, "
+        f"last frame's loss {summary.get('loss', float('nan')):.4f}"
+    )
 
 
 def print_overall(reports: list[dict[str, Any]], model: str, console: Console) -> None:

@@ -37,7 +37,9 @@ class PlainHost:
         if meta.get("rtdenoise.contract") != "1":
             raise ValueError(f"{model_path}: not an rtdenoise contract v1 model")
         self.buffers = json.loads(meta["rtdenoise.inputs"])["buffers"]  # in graph-input order
-        self.state = json.loads(meta["rtdenoise.state"])  # [{"name", "channels", "scale"}]
+        # [{"name", "channels", "scale"}], plus "size": [h, w] for a state that does not follow
+        # the frame (e.g. the weights of a model that learns while it runs)
+        self.state = json.loads(meta["rtdenoise.state"])
         self.pad = int(meta["rtdenoise.pad_multiple"])
         self.has_reset = any(i.name == "reset" for i in self.session.get_inputs())
         self.outputs = ["output"] + [f"state_next.{s['name']}" for s in self.state]
@@ -55,7 +57,10 @@ class PlainHost:
         first = self.history is None or (h, w) != self.size
         if first:
             self.history = {
-                s["name"]: np.zeros((1, s["channels"], hp // s["scale"], wp // s["scale"]), "f4")
+                s["name"]: np.zeros(
+                    (1, s["channels"], *(s.get("size") or (hp // s["scale"], wp // s["scale"]))),
+                    "f4",
+                )
                 for s in self.state
             }
             self.size = (h, w)

@@ -97,7 +97,8 @@ def _dynamic_shapes(model: DenoiserModel) -> tuple:
             )
     buffers = [{2: scaled(hb, pad), 3: scaled(wb, pad)} for _ in model.inputs]
     state = [
-        {2: scaled(hb, pad // s.scale), 3: scaled(wb, pad // s.scale)} for s in model.state_specs
+        None if s.size else {2: scaled(hb, pad // s.scale), 3: scaled(wb, pad // s.scale)}
+        for s in model.state_specs
     ]
     return (*buffers, None, *state)
 
@@ -107,9 +108,10 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     deployed = to_deploy(model)
     wrapper = ContractModule(deployed).eval()
     h, w = example_size(deployed.pad_multiple)
+    args = example_inputs(deployed, h, w)
     proto = to_onnx(
-        wrapper,
-        example_inputs(deployed, h, w),
+        deployed.export_module(wrapper, args),  # the family may trace it first (base.py)
+        args,
         dynamic_shapes=(_dynamic_shapes(deployed),),  # one entry: the *args tuple
         input_names=wrapper.declared.input_names(),
         output_names=wrapper.declared.output_names(),

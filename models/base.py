@@ -132,13 +132,20 @@ class DenoiserModel(nn.Module):
     ) -> dict[str, torch.Tensor]:
         """Zero state for an N x H x W sequence (what the executor feeds on frame 0)."""
         return {
-            s.name: torch.zeros(n, s.channels, h // s.scale, w // s.scale, device=device)
+            s.name: torch.zeros(n, s.channels, *s.spatial(h, w), device=device)
             for s in self.state_specs
         }
 
     def config(self) -> dict:
         """The JSON-able constructor arguments (stored in checkpoints and ONNX metadata)."""
         return self.cfg.to_dict()
+
+    def export_module(self, contract_module: nn.Module, example_args: tuple) -> nn.Module:
+        """What the ONNX exporter traces: `contract_module` (this model behind the contract's
+        positional inputs) by default. A family whose forward `torch.export` cannot trace (online
+        learning calls `torch.autograd.grad`) returns an equivalent module it can trace, e.g.
+        `models.online.traced_step(contract_module, example_args)`."""
+        return contract_module
 
     def declaration(self) -> Declaration:
         """What this model declares under the ONNX contract (written into its export)."""

@@ -63,11 +63,14 @@ def load_backend(
     portable: bool = False,
     threads: int | None = None,
     providers: Sequence[str] | None = None,
+    learn: bool = True,
+    learn_every: int = 1,
 ) -> Backend:
     """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
 
     portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
     providers: ONNX Runtime execution providers in order of preference (None or empty: CPU).
+    learn, learn_every: online learning of a model that learns while it runs (Denoiser).
     """
     if model.strip().lower() == "none":
         return PassThrough()
@@ -76,5 +79,10 @@ def load_backend(
     except ImportError as exc:
         raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
     return Denoiser(
-        model, fast_kernels=not portable, threads=threads, providers=list(providers or []) or None
+        model,
+        fast_kernels=not portable,
+        threads=threads,
+        providers=list(providers or []) or None,
+        learn=learn,
+        learn_every=learn_every,
     )

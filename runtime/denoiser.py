@@ -238,6 +238,9 @@ class Denoiser:
     providers: execution providers, e.g. ["CUDAExecutionProvider"] or ["cuda"] (default CPU).
     io_binding: keep the state in bound OrtValues between frames (default); False uses plain
         `session.run` with numpy state (the reference path, same results).
+    learn, learn_every: for a model that learns while it runs (metadata `rtdenoise.online`,
+        docs/contract.md): take its update step on frames 0, N, 2N, ... of each history
+        (N = learn_every), none with learn=False (weights frozen). Ignored by other models.
     """
 
     def __init__(
@@ -248,6 +251,8 @@ class Denoiser:
         threads: int | None = None,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
+        learn: bool = True,
+        learn_every: int = 1,
     ) -> None:
         if isinstance(model, (bytes, bytearray)):
             self.source, payload = "<model bytes>", bytes(model)
@@ -299,6 +304,11 @@ class Denoiser:
         self._pending_reset = True
         self._reset_reason = "first frame"
         self._lock = threading.Lock()  # one frame at a time (docs/reliability.md, "Threads")
+        if learn_every < 1:
+            raise InputError(f"learn_every must be >= 1, got {learn_every}")
+        self.learn = learn
+        self.learn_every = learn_every
+        self._freeze = (self._contract.online or {}).get("freeze")
 
     # -- properties -------------------------------------------------------------------------
 
@@ -339,6 +349,26 @@ class Denoiser:
     @property
     def providers(self) -> list[str]:
         return self._session.get_providers()
+
+    @property
+    def online(self) -> dict[str, Any] | None:
+        """The model's `rtdenoise.online` description (None: it does not learn while it runs)."""
+        return self._contract.online
+
+    def state_value(self, name: str) -> np.ndarray:
+        """A copy of state `name` as the last frame left it (e.g. an online model's weights or
+        loss); zeros before the first frame of a history."""
+        if name not in {s.name for s in self.state_specs}:
+            known = [s.name for s in self.state_specs]
+            raise InputError(f"model {self.family!r} has no state {name!r} (state: {known})")
+        if self._binding is not None:
+            if name not in self._slots:
+                raise InputError("no frame processed yet")
+            slot = self._slots[name][0]
+            return np.array(slot.host if slot.host is not None else slot.value.numpy())
+        if name not in self._state:
+            raise InputError("no frame processed yet")
+        return np.array(self._state[name])
 
     @property
     def session(self) -> ort.InferenceSession:
@@ -415,6 +445,7 @@ class Denoiser:
             report.reset = self._reset_reason
             self._start_history((h, w), (hp, wp))
         first = self._frame_index == 0
+        self._write_controls()
         t0 = time.perf_counter()
         try:
             if self._binding is not None:
@@ -559,6 +590,21 @@ class Denoiser:
         self._size = size
         self._frame_index = 0
         self._pending_reset = False
+
+    def _write_controls(self) -> None:
+        """An online model's freeze control for this frame: 0 = take the update step."""
+        if self._freeze is None:
+            return
+        step = self.learn and self._frame_index % self.learn_every == 0
+        value = 0.0 if step else 1.0
+        if self._binding is None:
+            self._state[self._freeze].fill(value)
+            return
+        slot = self._slots[self._freeze][0]
+        if slot.host is not None:
+            slot.host.fill(value)
+        else:
+            slot.value.update_inplace(np.full(slot.shape, value, np.float32))
 
     def _run_plain(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
         inputs = dict(feeds)

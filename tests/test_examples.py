@@ -71,7 +71,7 @@ def test_plain_host_needs_only_onnxruntime_and_numpy(tmp_path):
     assert proc.stdout.count("output (3, 48, 64)") == 3
 
 
-@pytest.mark.parametrize("family", ["wskp", "afn"])
+@pytest.mark.parametrize("family", ["wskp", "afn", "crossreg"])
 @pytest.mark.parametrize("fast_kernels", [True, False])
 def test_plain_host_matches_denoiser_over_8_frames(family, fast_kernels):
     """The same 8 frames with a camera cut before frame 5: equal within 1e-5, state fed back."""

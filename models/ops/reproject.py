@@ -3,30 +3,45 @@
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 
 from .torch_op import torch_op
 
 
-def pixel_grid(motion: torch.Tensor) -> torch.Tensor:
-    """grid_sample coordinates (N, H, W, 2) of `current + motion` (align_corners=False)."""
-    h, w = motion.shape[-2], motion.shape[-1]
-    xs = torch.arange(w, device=motion.device, dtype=motion.dtype)
-    ys = torch.arange(h, device=motion.device, dtype=motion.dtype)
-    px = xs.view(1, 1, w) + motion[:, 0]  # previous x in pixels, (N, H, W)
-    py = ys.view(1, h, 1) + motion[:, 1]
-    # align_corners=False: pixel centre x maps to (2 x + 1) / W - 1.
-    gx = (2.0 * px + 1.0) / w - 1.0
-    gy = (2.0 * py + 1.0) / h - 1.0
-    return torch.stack((gx, gy), dim=-1)
+def bilinear_taps(motion: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """For every pixel of (N, 2, H, W) motion: the flat indices of its four taps (N, H*W each,
+    nw, ne, sw, se) in an H*W plane and the weights (wx, wy) of the clamped source position."""
+    n, _, h, w = motion.shape
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
+    px = torch.clamp(xs + motion[:, 0], 0.0, w - 1.0)  # previous position, in the image
+    py = torch.clamp(ys + motion[:, 1], 0.0, h - 1.0)
+    x0, y0 = torch.floor(px), torch.floor(py)
+    wx, wy = px - x0, py - y0
+    x0i, y0i = x0.long(), y0.long()
+    x1i, y1i = torch.clamp(x0i + 1, max=w - 1), torch.clamp(y0i + 1, max=h - 1)
+    taps = [
+        (yi * w + xi).reshape(n, h * w)
+        for yi, xi in ((y0i, x0i), (y0i, x1i), (y1i, x0i), (y1i, x1i))
+    ]
+    return (*taps, wx, wy)
 
 
 @torch_op("Reproject")
 def reproject(previous: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
-    """Bilinearly sample `previous` (N, C, H, W) at current + motion (border-clamped).
+    """Bilinearly sample `previous` (N, C, H, W) at current + motion, clamped to the image.
 
-    Differentiable tensor-op form (the numeric reference).
+    Differentiable tensor-op form (the numeric reference): four gathers weighted
+    nw (1 - wy)(1 - wx) + ne (1 - wy) wx + sw wy (1 - wx) + se wy wx, summed in that order,
+    the arithmetic the function body and the fast kernel repeat step by step.
     """
-    return F.grid_sample(
-        previous, pixel_grid(motion), mode="bilinear", padding_mode="border", align_corners=False
-    )
+    n, c, h, w = previous.shape
+    *taps, wx, wy = bilinear_taps(motion)
+    flat = previous.reshape(n, c, h * w)
+
+    def tap(index: torch.Tensor) -> torch.Tensor:
+        return torch.gather(flat, 2, index.unsqueeze(1).expand(n, c, h * w)).reshape(n, c, h, w)
+
+    ex, ey = (1.0 - wx).unsqueeze(1), (1.0 - wy).unsqueeze(1)
+    wx, wy = wx.unsqueeze(1), wy.unsqueeze(1)
+    nw, ne, sw, se = (tap(t) for t in taps)
+    return nw * (ey * ex) + ne * (ey * wx) + sw * (wy * ex) + se * (wy * wx)
