@@ -1,7 +1,7 @@
 """Property-based: whatever a frame holds (NaN, Inf, huge, negative, any size, sizes that
 change), `Denoiser.process` returns a finite, non-negative (3, H, W) image, leaves the caller's
 arrays alone, counts every pixel with NaN/Inf, and nothing non-finite reaches the model (its
-state and output never need the last-resort replacement), on both paths of both demo models."""
+state and output never need the last-resort replacement), on both paths of every demo model."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from rtdenoise.runtime import Denoiser
 
-CHANNELS = {"color": 3, "albedo": 3, "normal": 3, "depth": 1, "motion": 2}
+CHANNELS = {"color": 3, "color_b": 3, "albedo": 3, "normal": 3, "depth": 1, "motion": 2}
 SPECIAL = [np.nan, np.inf, -np.inf, 0.0, -1.0, 1e-30, 1e4, 1e6, 1e30, 3e38, -3e38]
 VALUES = st.one_of(
     st.sampled_from(SPECIAL), st.floats(width=32, allow_nan=True, allow_infinity=True)
@@ -30,6 +30,7 @@ def frames(draw) -> list[dict[str, np.ndarray]]:
         scale = draw(st.sampled_from([1e-3, 1.0, 1e3]))
         b = {
             "color": scale * rng.exponential(1.0, (3, h, w)),
+            "color_b": scale * rng.exponential(1.0, (3, h, w)),
             "albedo": rng.random((3, h, w)),
             "normal": rng.uniform(-1, 1, (3, h, w)),
             "depth": rng.uniform(0.1, 100, (1, h, w)),
@@ -60,7 +61,7 @@ def denoiser(model: str, fast: bool) -> Denoiser:
 
 
 @pytest.mark.parametrize("fast", [True, False], ids=["fast", "portable"])
-@pytest.mark.parametrize("model", ["demo:afn", "demo:wskp"])
+@pytest.mark.parametrize("model", ["demo:afn", "demo:wskp", "demo:nbg", "demo:crossreg"])
 def test_any_frame_gives_a_finite_image_and_history(model, fast):
     den = denoiser(model, fast)
     assert den.fast_kernels is fast
@@ -85,8 +86,8 @@ def test_any_frame_gives_a_finite_image_and_history(model, fast):
             for pair in den._slots.values():
                 assert np.isfinite(pair[0].host).all()
             bad = np.zeros((h, w), bool)
-            for v in b.values():
-                bad |= ~np.isfinite(v).all(axis=0)
+            for name in den.required_buffers:
+                bad |= ~np.isfinite(b[name]).all(axis=0)
             assert den.last_nonfinite == int(bad.sum())
             assert den.last_state_nonfinite == 0 and den.last_guard.output_nonfinite == 0
 
