@@ -25,7 +25,7 @@ EXIT_BAD_INPUT = 2
 EXIT_FAILURE = 1
 
 # Modules that only an extra installs (pyproject.toml, [project.optional-dependencies]).
-OPTIONAL_MODULES = frozenset({"torch", "onnx", "onnxscript", "mitsuba", "drjit", "pyoidn"})
+OPTIONAL_MODULES = frozenset({"torch", "onnx", "onnxscript", "mitsuba", "drjit", "pyoidn", "ray"})
 # Distributions whose versions `--version` reports (metadata only: nothing is imported).
 REPORTED_VERSIONS = ("onnxruntime", "onnxruntime-extensions", "numba", "numpy", "torch")
 

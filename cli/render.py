@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-import warnings
 from pathlib import Path
 from typing import Annotated
 
@@ -18,8 +17,17 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from ..datagen.render import RenderConfig, derive_seed, render_sequence
+from ..datagen.cluster import render_index, sequence_name, set_render_threads
+from ..datagen.render import RenderConfig
 from ..datagen.variant import SUPPORTED_VARIANTS, select_variant
+from .cluster import (
+    DEFAULT_RETRIES,
+    ClusterAddressOption,
+    ClusterOption,
+    RetriesOption,
+    report_failures,
+    task_progress,
+)
 from .common import VersionOption, one_line_warnings, parse_size, user_errors
 
 HELP = """Render N random animated scenes (camera orbit, Mitsuba 3 path tracer) into
@@ -39,6 +47,11 @@ Sequence i uses a scene seed derived from (--seed, i), so a job can be split:
 e.g. `--sequences 12 --start-index 0` and `--sequences 12 --start-index 12`
 give the same 24 sequences as one run. Complete folders are skipped unless
 --overwrite. Needs the data extra (mitsuba).
+
+With --cluster each sequence is one Ray task (the cluster extra; docs/cluster.md),
+seeded as locally, so the data set is the same either way; OUT_DIR must be on a
+file system every node shares. A sequence that fails is named, the others finish,
+and the exit code is non-zero.
 """
 
 app = typer.Typer(add_completion=False, rich_markup_mode=None)
@@ -78,6 +91,18 @@ def render(
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Re-render complete ones.")
     ] = False,
+    threads: Annotated[
+        int | None,
+        typer.Option(
+            "--threads",
+            min=1,
+            help="Render threads per sequence (default: all cores); with --cluster also the "
+            "CPUs Ray reserves for each (default there: 1).",
+        ),
+    ] = None,
+    cluster: ClusterOption = False,
+    cluster_address: ClusterAddressOption = None,
+    retries: RetriesOption = DEFAULT_RETRIES,
     version: VersionOption = False,
 ) -> None:
     if size is not None:
@@ -107,39 +132,77 @@ def render(
     )
     indices = range(start_index, start_index + sequences)
     todo = [
-        i for i in indices if overwrite or not (out_dir / f"seq_{i:03d}" / "meta.json").is_file()
+        i for i in indices if overwrite or not (out_dir / sequence_name(i) / "meta.json").is_file()
     ]
     if len(todo) < sequences:
         console.print(f"skipping {sequences - len(todo)} complete sequence(s) (use --overwrite)")
     start = time.perf_counter()
-    columns = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-    )
-    with Progress(*columns, console=console) as progress:
-        task = progress.add_task("render", total=len(todo) * frames)
-        for i in todo:
-            progress.update(task, description=f"seq_{i:03d}")
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always", RuntimeWarning)
-                render_sequence(
-                    out_dir / f"seq_{i:03d}",
-                    derive_seed(seed, i),
+    if cluster or cluster_address is not None:
+        _render_cluster(out_dir, todo, seed, cfg, used, threads, cluster_address, retries)
+    else:
+        set_render_threads(threads)
+        columns = (
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+        )
+        with Progress(*columns, console=console) as progress:
+            task = progress.add_task("render", total=len(todo) * frames)
+            for i in todo:
+                progress.update(task, description=sequence_name(i))
+                render_index(
+                    out_dir,
+                    i,
+                    seed,
                     cfg,
-                    variant=used,
+                    used,
                     on_frame=lambda _t: progress.advance(task),
-                    meta_extra={"job": {"base_seed": seed, "index": i}},
+                    on_warning=_warn,
                 )
-            for w in caught:
-                _warn(str(w.message))
     console.print(
         f"rendered {len(todo)} sequence(s) of {frames} frame(s) at {width}x{height}, "
         f"{spp_ref} spp references, variant {used}, in {time.perf_counter() - start:.1f} s "
         f"-> {out_dir}"
     )
+
+
+def _render_cluster(
+    out_dir: Path,
+    todo: list[int],
+    seed: int,
+    cfg: RenderConfig,
+    variant: str,
+    threads: int | None,
+    address: str | None,
+    retries: int,
+) -> None:
+    """--cluster: one Ray task per sequence; exits non-zero when some failed."""
+    from ..datagen.cluster import render_sequences
+
+    totals = {sequence_name(i): cfg.frames for i in todo}
+    with user_errors(extra="cluster"), task_progress(console, totals, "render") as callbacks:
+        outcomes = render_sequences(
+            out_dir,
+            todo,
+            seed,
+            cfg,
+            variant,
+            threads=threads,
+            max_retries=retries,
+            address=address,
+            on_progress=callbacks[0],
+            on_done=callbacks[1],
+        )
+    for o in outcomes:
+        for message in o.warnings:
+            _warn(f"{o.name}: {message}")
+        if o.ok and o.result != variant:
+            _warn(f"{o.name}: rendered with {o.result}, not {variant}, on its node")
+    code = report_failures(outcomes, "sequence")
+    if code:
+        raise typer.Exit(code)
 
 
 def main() -> None:

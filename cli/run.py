@@ -17,6 +17,14 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from rtdenoise.cli.cluster import (
+    DEFAULT_RETRIES,
+    ClusterAddressOption,
+    ClusterOption,
+    RetriesOption,
+    report_failures,
+    task_progress,
+)
 from rtdenoise.cli.common import (
     VersionOption,
     one_line_warnings,
@@ -27,10 +35,11 @@ from rtdenoise.cli.common import (
 )
 from rtdenoise.runtime.atomic import check_writable
 from rtdenoise.runtime.backend import Backend, load_backend
+from rtdenoise.runtime.cluster import BackendSpec, TaskOutcome, run_shots
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
 from rtdenoise.runtime.memory import tune_allocator
-from rtdenoise.runtime.run import METRIC_KEYS, Job, check_out_dir, run_sequence
+from rtdenoise.runtime.run import METRIC_KEYS, Job, check_out_dir, online_summary, run_sequence
 from rtdenoise.runtime.sequence import find_frames, group_shots
 
 # The model used when --model is not given: the shipped AFN demo (Lee24).
@@ -263,7 +272,12 @@ def run(
     ] = False,
     threads: Annotated[
         int | None,
-        typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads (default: all)."),
+        typer.Option(
+            "--threads",
+            min=1,
+            help="ONNX Runtime intra-op threads (default: all); with --cluster, also numba's "
+            "threads and the CPUs Ray reserves for each shot (default there: 1).",
+        ),
     ] = None,
     overwrite: Annotated[
         bool,
@@ -315,6 +329,18 @@ def run(
             "--learn-every", min=1, help="Online learning: update on every N-th frame only."
         ),
     ] = 1,
+    cluster: ClusterOption = False,
+    cluster_address: ClusterAddressOption = None,
+    gpus_per_task: Annotated[
+        float,
+        typer.Option(
+            "--gpus-per-task",
+            min=0,
+            help="With --cluster: GPUs Ray reserves for each shot (e.g. 1 with `-p cuda`; "
+            "0.5 runs two shots per GPU).",
+        ),
+    ] = 0,
+    retries: RetriesOption = DEFAULT_RETRIES,
 ) -> None:
     """Denoise an EXR frame sequence with a real-time denoiser, frame after frame.
 
@@ -327,6 +353,10 @@ def run(
     outputs are never replaced unless --overwrite; --resume continues an interrupted run.
     A gap in the frame numbers resets the history. Ctrl-C stops after the frame being
     written, leaving only complete files (exit 130).
+
+    Several shots run one after another, or with --cluster one Ray task each, in parallel
+    on this machine or a Ray cluster (docs/cluster.md): a shot that fails is reported by
+    name, the others finish, and the exit code is non-zero.
 
     Metrics: PSNR and SSIM on tau-tonemapped images, tau(x) = (x / (1 + x))^(1/2.4);
     SMAPE and relMSE on linear radiance; the mean PSNR pools the error over all frames.
@@ -353,6 +383,36 @@ def run(
                     "--resume rewrites it for the resumed run"
                 )
         jobs, several = _jobs(list(inputs or []), output, reference, demo)
+        if cluster or cluster_address is not None:
+            spec = BackendSpec(
+                model,
+                portable=portable,
+                threads=threads,
+                providers=tuple(provider or ()),
+                learn=online,
+                learn_every=learn_every,
+            )
+            code = run_cluster(
+                jobs,
+                spec,
+                lay,
+                overrides,
+                address=cluster_address,
+                gpus_per_task=gpus_per_task,
+                retries=retries,
+                metrics_json=metrics_json,
+                options={
+                    "half": half,
+                    "preview": preview,
+                    "overwrite": overwrite,
+                    "resume": resume,
+                },
+                out=out,
+                err=err,
+            )
+            if code:
+                raise typer.Exit(code)
+            return
         backend = load_backend(
             model,
             portable=portable,
@@ -389,16 +449,98 @@ def run(
             write_json(metrics_json, payload)
 
 
-def online_summary(backend: Backend) -> dict[str, Any] | None:
-    """Steps taken and last loss of a model that learns while it runs (None otherwise)."""
-    spec = getattr(backend, "online", None)
-    if not spec:
-        return None
-    summary: dict[str, Any] = {"learn": backend.learn, "learn_every": backend.learn_every}
-    for key in ("step", "loss"):
-        if spec.get(key):
-            summary[key] = float(backend.state_value(spec[key]).ravel()[0])
-    return summary
+def run_cluster(
+    jobs: list[Job],
+    spec: BackendSpec,
+    layout: Layout,
+    overrides: dict[str, str],
+    *,
+    address: str | None,
+    gpus_per_task: float,
+    retries: int,
+    metrics_json: Path | None,
+    options: dict[str, Any],
+    out: Console,
+    err: Console,
+) -> int:
+    """`--cluster`: one Ray task per shot, one progress bar, a table; returns the exit code."""
+    if spec.model.strip().lower() != "none":
+        from rtdenoise.runtime.denoiser import resolve_model
+
+        resolve_model(spec.model)  # a typo fails once here, not once per shot
+    with user_errors(extra="cluster"):
+        from rtdenoise.runtime.cluster import connect
+
+        started = connect(address)
+    try:
+        totals = {job.name: len(job.frames) for job in jobs}
+        with task_progress(err, totals, "denoise") as (on_progress, on_done):
+            outcomes = run_shots(
+                jobs,
+                spec,
+                layout,
+                overrides,
+                num_gpus=gpus_per_task,
+                max_retries=retries,
+                on_progress=on_progress,
+                on_done=on_done,
+                **options,
+            )
+    finally:
+        if started:
+            import ray
+
+            ray.shutdown()
+    for o in outcomes:
+        for message in o.warnings:
+            warn(message)
+    reports = [o.result for o in outcomes if o.ok]
+    print_shots(outcomes, spec.model, out)
+    if len(reports) > 1:
+        print_overall(reports, spec.model, out)
+    if metrics_json is not None:
+        failed = [{"name": o.name, "error": o.error, "attempts": o.attempts} for o in outcomes]
+        payload = {
+            "model": spec.model,
+            "layout": layout.name,
+            "sequences": reports,
+            "failed": [f for f, o in zip(failed, outcomes, strict=True) if not o.ok],
+        }
+        write_json(metrics_json, payload)
+    return report_failures(outcomes, "shot")
+
+
+def print_shots(outcomes: list[TaskOutcome], model: str, console: Console) -> None:
+    """One row per shot: frames, mean metrics of the output (noisy input in brackets), time."""
+    table = Table(
+        title=f"model {model}, one Ray task per shot (noisy input in brackets)",
+        title_justify="left",
+    )
+    for label, justify in (
+        ("shot", "left"),
+        ("frames", "right"),
+        ("PSNR dB ↑", "right"),
+        ("SSIM ↑", "right"),
+        ("time s", "right"),
+        ("result", "left"),
+    ):
+        table.add_column(label, justify=justify)
+    for o in outcomes:
+        tries = f" ({o.attempts} attempts)" if o.attempts > 1 else ""
+        if not o.ok:
+            table.add_row(o.name, "-", "-", "-", "-", f"[red]failed{tries}[/red]")
+            continue
+        r = o.result
+        mean, inp = r.get("mean"), r.get("input")
+        metrics = [
+            f"{_format(mean[k], k)} ({_format(inp[k], k)})" if mean and inp else "-"
+            for k in ("psnr", "ssim")
+        ]
+        kept = f", {r['skipped']} kept" if r.get("skipped") else ""
+        table.add_row(
+            o.name, str(len(r["frames"])), *metrics, f"{o.seconds:.1f}", f"ok{tries}{kept}"
+        )
+    console.print(table)
 
 
 def print_online(summary: dict[str, Any], console: Console) -> None:
@@ -434,4 +576,12 @@ def main() -> None:
     app()
 
 
-__all__ = ["DEFAULT_MODEL", "app", "main", "print_report", "run_with_progress"]
+__all__ = [
+    "DEFAULT_MODEL",
+    "app",
+    "main",
+    "print_report",
+    "print_shots",
+    "run_cluster",
+    "run_with_progress",
+]

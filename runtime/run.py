@@ -307,6 +307,18 @@ def run_sequence(
     }
 
 
+def online_summary(backend: Backend) -> dict[str, Any] | None:
+    """Steps taken and last loss of a model that learns while it runs (None otherwise)."""
+    spec = getattr(backend, "online", None)
+    if not spec:
+        return None
+    summary: dict[str, Any] = {"learn": backend.learn, "learn_every": backend.learn_every}
+    for key in ("step", "loss"):
+        if spec.get(key):
+            summary[key] = float(backend.state_value(spec[key]).ravel()[0])
+    return summary
+
+
 def _row(
     i: int, path: Path, out_path: Path, ref: Path | None, *, skipped: bool, frame: Any = None
 ) -> dict[str, Any]:
@@ -334,6 +346,7 @@ __all__ = [
     "check_out_dir",
     "frames_done",
     "gap_before",
+    "online_summary",
     "plan_outputs",
     "remove_stale_temps",
     "run_sequence",

@@ -88,6 +88,7 @@ def test_fresh_venv_demo_runs_with_the_fast_kernels(fresh_venv, tmp_path):
         (["denoise-train", "seq", "-o", "x.pt"], "train"),
         (["denoise-bench", "model", "demo:afn"], "bench"),
         (["denoise-render", "out"], "data"),
+        (["denoise-run", "--demo", "-o", "out", "--cluster"], "cluster"),
     ],
 )
 def test_fresh_venv_commands_name_their_extra(fresh_venv, tmp_path, argv, extra):

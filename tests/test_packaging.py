@@ -33,10 +33,11 @@ def test_base_install_has_no_framework_and_extras_by_role():
         "onnxruntime-extensions",
     }  # fmt: skip
     extras = PROJECT["optional-dependencies"]
-    assert set(extras) == {"export", "train", "data", "bench", "all", "test"}
+    assert set(extras) == {"export", "train", "data", "bench", "cluster", "all", "test"}
     names = {e: {Requirement(r).name for r in reqs} for e, reqs in extras.items()}
     assert {"torch", "onnx", "onnxscript"} <= names["export"]
     assert names["train"] == {"rtdenoise"} and names["data"] == {"mitsuba"}
+    assert names["cluster"] == {"ray"}
     torch = next(Requirement(r) for r in extras["export"] if r.startswith("torch"))
     assert all(s.operator == ">=" for s in torch.specifier)  # a newer torch is never downgraded
     assert isinstance(PROJECT["license"], str)  # SPDX expression, not the deprecated table
