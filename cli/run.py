@@ -383,7 +383,10 @@ def run(
                     "--resume rewrites it for the resumed run"
                 )
         jobs, several = _jobs(list(inputs or []), output, reference, demo)
-        if cluster or cluster_address is not None:
+        cluster = cluster or cluster_address is not None
+        if gpus_per_task and not cluster:
+            raise InputError("--gpus-per-task is for --cluster (one Ray task per shot)")
+        if cluster:
             spec = BackendSpec(
                 model,
                 portable=portable,

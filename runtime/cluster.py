@@ -6,7 +6,8 @@ per sequence and collects one `TaskOutcome` each, in the order given; `run_shots
 `denoise-run --cluster`: each task runs the very `run_sequence` of the local path.
 
 - Progress: every task reports each frame to one small actor (`_Tracker`, no CPU of its
-  own); the driver polls it while it waits, so the caller hears per-frame progress.
+  own, kept on the driver's node); the driver polls it while it waits, so the caller hears
+  per-frame progress.
 - Failures: an exception inside a task (a bad file, a model error) is caught there and
   becomes that task's outcome (not retried: it would fail again); a lost worker or node is
   re-run by Ray up to `max_retries` times, then reported the same way. The other tasks finish.
@@ -144,7 +145,7 @@ def _run_task(
         text = " ".join(str(exc).split()) or "(no message)"
         out["error"] = f"{type(exc).__name__}: {text}"
         out["input_error"] = isinstance(exc, INPUT_ERRORS)
-    out.update(attempt=ctx.attempt, seconds=time.perf_counter() - t0, warnings=ctx.warnings)
+    out.update(attempt=max(ctx.attempt, 1), seconds=time.perf_counter() - t0, warnings=ctx.warnings)
     return out
 
 
@@ -202,7 +203,10 @@ def run_tasks(
 
     pending: dict[Any, str] = {}
     try:
-        tracker = ray.remote(num_cpus=0)(_Tracker).remote()
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        here = NodeAffinitySchedulingStrategy(ray.get_runtime_context().get_node_id(), soft=True)
+        tracker = ray.remote(num_cpus=0, scheduling_strategy=here)(_Tracker).remote()
         remote = ray.remote(_run_task)
         cwd = os.getcwd()
         resources = {"num_cpus": num_cpus, "num_gpus": num_gpus, "max_retries": max_retries}
@@ -230,8 +234,9 @@ def run_tasks(
                     )
                 except RayError as exc:  # the worker or node was lost, retries used up
                     first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+                    tries = attempts.get(name, max_retries + 1)
                     outcome = TaskOutcome(
-                        name, error=f"{type(exc).__name__}: {first}", attempts=max_retries + 1
+                        name, error=f"{type(exc).__name__}: {first}", attempts=tries
                     )
                 outcomes[name] = outcome
                 if on_done is not None:
