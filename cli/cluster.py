@@ -25,10 +25,9 @@ ClusterOption = Annotated[
     bool,
     typer.Option(
         "--cluster",
-        help="Run each sequence as one Ray task (the `cluster` extra; docs/cluster.md), on the "
-        "cluster at --cluster-address, else on Ray's default: $RAY_ADDRESS, a cluster started "
-        "on this machine with `ray start --head`, else a new local Ray on all cores. Paths must "
-        "be on a file system every node shares.",
+        help="Run each sequence as one Ray task (the `cluster` extra; docs/cluster.md): on the "
+        "cluster at --cluster-address, else at $RAY_ADDRESS, else on a new local Ray on all "
+        "cores. Paths must be on a file system every node shares.",
     ),
 ]
 ClusterAddressOption = Annotated[

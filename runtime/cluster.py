@@ -153,9 +153,10 @@ def connect(address: str | None = None, *, num_cpus: int | None = None) -> bool:
     """Make sure this process is connected to Ray; True when this call connected it (the
     caller then calls `ray.shutdown()`), False when it already was.
 
-    address: a cluster to join (`ray://host:10001`, `host:6379` or `auto`); None: Ray's own
-    choice (RAY_ADDRESS, else a cluster started on this machine with `ray start`, else a new
-    local instance). num_cpus: CPUs of a new local instance (default: all).
+    address: a cluster to join (`ray://host:10001`, `host:6379`, or `auto`: the one started
+    on this machine with `ray start --head`); None: $RAY_ADDRESS when set, else a new local
+    instance (never a stale cluster Ray remembers). num_cpus: CPUs of a new local instance
+    (default: all).
     """
     try:
         import ray
@@ -167,7 +168,9 @@ def connect(address: str | None = None, *, num_cpus: int | None = None) -> bool:
     if ray.is_initialized():
         return False
     kwargs: dict[str, Any] = {"logging_level": logging.WARNING, "log_to_driver": False}
-    if address is None and num_cpus is not None:
+    if address is None:
+        address = os.environ.get("RAY_ADDRESS") or "local"
+    if address == "local" and num_cpus is not None:
         kwargs["num_cpus"] = num_cpus
     ray.init(address=address, **kwargs)
     return True
