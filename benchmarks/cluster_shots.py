@@ -27,6 +27,7 @@ import datetime
 import os
 import platform
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -103,56 +104,51 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=16)
     parser.add_argument("--size", default="256x256", help="WIDTHxHEIGHT, multiples of 64")
     parser.add_argument("--model", default="demo:afn")
+    parser.add_argument("--rounds", type=int, default=1, help="runs of each, in turn")
     args = parser.parse_args()
     w, h = (int(v) for v in args.size.lower().split("x"))
     cpus = os.cpu_count() or 1
+    names = [
+        ("sequential", "1 process"),
+        ("sequential --threads 1", "1 process"),
+        ("--cluster (starts a local Ray)", f"{cpus} Ray workers"),
+        ("--cluster-address auto (a running Ray)", f"{cpus} Ray workers"),
+    ]
+    walls: list[list[float]] = [[] for _ in names]
+    same = True
     with tempfile.TemporaryDirectory(prefix="cluster-shots-") as tmp:
         root = Path(tmp)
         shots = [str(p) for p in make_shots(root / "in", args.shots, args.frames, (h, w))]
         run = [str(BIN / "denoise-run"), *shots, "--model", args.model]
-        rows = []
-        rows.append(("sequential", "1 process", timed([*run, "-o", str(root / "seq")])))
-        rows.append(
-            (
-                "sequential --threads 1",
-                "1 process",
-                timed([*run, "-o", str(root / "seq1"), "--threads", "1"]),
-            )
-        )
         cluster = [*run, "--threads", "1", "--cluster"]
-        rows.append(
-            (
-                "--cluster (starts a local Ray)",
-                f"{cpus} Ray workers",
-                timed([*cluster, "-o", str(root / "ray_new")]),
-            )
-        )
-        head = start_head(cpus)
-        try:
-            rows.append(
-                (
-                    "--cluster-address auto (a running Ray)",
-                    f"{cpus} Ray workers",
-                    timed([*cluster, "--cluster-address", "auto", "-o", str(root / "ray_auto")]),
-                )
-            )
-        finally:
-            head.terminate()  # `ray start --block` stops the Ray processes it started
-            head.wait(timeout=60)
-        same = outputs(root / "seq1") == outputs(root / "ray_new") == outputs(root / "ray_auto")
-        n_out = len(outputs(root / "seq1"))
-        shutil.rmtree(root / "in")
+        for r in range(args.rounds):  # the four runs in turn, so that load drifts hit all
+            out = [root / f"{k}_{r}" for k in ("seq", "seq1", "ray_new", "ray_auto")]
+            walls[0].append(timed([*run, "-o", str(out[0])]))
+            walls[1].append(timed([*run, "-o", str(out[1]), "--threads", "1"]))
+            walls[2].append(timed([*cluster, "-o", str(out[2])]))
+            head = start_head(cpus)
+            try:
+                walls[3].append(timed([*cluster, "--cluster-address", "auto", "-o", str(out[3])]))
+            finally:
+                head.terminate()  # `ray start --block` stops the Ray processes it started
+                head.wait(timeout=60)
+            n_out = len(outputs(out[1]))
+            same = same and outputs(out[1]) == outputs(out[2]) == outputs(out[3])
+            for folder in out:
+                shutil.rmtree(folder)
+    rows = [(*name, statistics.median(t), t) for name, t in zip(names, walls, strict=True)]
     base = rows[0][2]
     print(
         f"{datetime.date.today()}, {platform.machine()} {cpus} cores, Python "
         f"{platform.python_version()}: {args.shots} shots x {args.frames} frames "
-        f"{w}x{h}, {args.model}; {n_out} outputs"
+        f"{w}x{h}, {args.model}; {n_out} outputs, {args.rounds} round(s)"
     )
     print()
-    print("| run | workers | wall s | vs sequential |")
-    print("|---|---|---:|---:|")
-    for name, workers, wall in rows:
-        print(f"| {name} | {workers} | {wall:.1f} | {base / wall:.2f}x |")
+    print("| run | workers | wall s (median) | each round s | sequential / this |")
+    print("|---|---|---:|---|---:|")
+    for name, workers, wall, each in rows:
+        rounds = ", ".join(f"{t:.1f}" for t in each)
+        print(f"| {name} | {workers} | {wall:.1f} | {rounds} | {base / wall:.2f}x |")
     print()
     print(f"outputs of --threads 1 and both Ray runs byte-identical: {'yes' if same else 'NO'}")
 
