@@ -32,6 +32,16 @@ def _parse_config(text: str | None) -> dict | None:
     return data
 
 
+def _parse_counts(text: str) -> tuple[int, ...]:
+    try:
+        counts = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        counts = ()
+    if not counts or min(counts) < 1:
+        fail(f"--samples: expected counts >= 1 such as 1,2,4, got {text!r}")
+    return counts
+
+
 def _parse_range(text: str) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in text.split(","))
@@ -81,6 +91,12 @@ def train_command(
         typer.Option(help="Model config overrides: a JSON object or a JSON file."),
     ] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    samples: Annotated[
+        str | None,
+        typer.Option(
+            help="Per-sample models: sample counts S drawn per batch, e.g. 1,2,4 (default: all)."
+        ),
+    ] = None,
 ) -> None:
     """Train a denoiser on sequences in the canonical EXR layout and write a checkpoint.
 
@@ -96,6 +112,7 @@ def train_command(
     """
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
+    sample_counts = _parse_counts(samples) if samples else ()
     with user_errors():
         from rtdenoise.models.train import TrainSettings, train
 
@@ -111,6 +128,7 @@ def train_command(
             flips=flips,
             save_every=save_every,
             threads=threads,
+            sample_counts=sample_counts,
         )
         result = train(
             sequences,

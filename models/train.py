@@ -21,7 +21,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from rtdenoise.runtime.contract import SAMPLES
 from rtdenoise.runtime.metrics import psnr
+from rtdenoise.runtime.samples import sample_features_of
 
 from .base import DenoiserModel
 from .checkpoint import CheckpointError, load_training_state, save_checkpoint
@@ -46,6 +48,7 @@ class TrainSettings:
     save_every: int = 500  # steps between checkpoints (0: only at the end)
     log_every: int = 50  # window of the loss history kept in meta
     threads: int | None = 2  # torch intra-op threads (None: leave torch's default)
+    sample_counts: tuple[int, ...] = ()  # per-sample models: S per batch drawn from these
 
 
 @dataclass
@@ -184,8 +187,10 @@ def train(
     else:
         model = build_model(family, model_config)
     model.train()
-    sequences = load_sequences(data_dirs, model.inputs)
-    val_sequences = load_sequences(val_dirs, model.inputs) if val_dirs else []
+    features = sample_features_of(model.config()) if SAMPLES in model.inputs else None
+    sequences = load_sequences(data_dirs, model.inputs, features)
+    val_buffers = tuple(dict.fromkeys((*model.inputs, "color")))  # + the noisy input's PSNR
+    val_sequences = load_sequences(val_dirs, val_buffers, features) if val_dirs else []
     sampler = ClipSampler(
         sequences,
         rng,
@@ -195,6 +200,8 @@ def train(
         multiple=model.pad_multiple,
         flips=s.flips,
         brightness=s.brightness,
+        sample_features=features or (),
+        sample_counts=s.sample_counts,
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=s.lr)
     step = 0
@@ -214,7 +221,11 @@ def train(
             "data": [str(Path(d)) for d in data_dirs],
             "val": [str(Path(d)) for d in val_dirs],
             "seed": s.seed,
-            "settings": {**asdict(s), "brightness": list(s.brightness)},
+            "settings": {
+                **asdict(s),
+                "brightness": list(s.brightness),
+                "sample_counts": list(s.sample_counts),
+            },
             "command": command if command is not None else " ".join(sys.argv),
             "torch": str(torch.__version__),
             "resumed_from": str(resume) if resume is not None else meta_in.get("resumed_from"),

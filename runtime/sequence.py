@@ -12,6 +12,10 @@ the same number are an error. References default to ``ref_NNNN.exr`` beside each
 
 Non-finite input values (NaN, Inf) are replaced by 0 and counted per frame (pixels with
 any non-finite value in any buffer), so that nothing downstream sees them.
+
+Per-sample input (the rank-5 `samples` buffer) is read when asked for: `sample_features`
+names the features (runtime/samples.py: `sample<i>.*` layers, else S = 1 from the pixel
+buffers).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import numpy as np
 from .errors import InputError
 from .exr import read_exr, read_exr_header, write_exr
 from .layouts import Layout, extract_buffers, get_layout, resolve_channels
+from .samples import read_samples, samples_from_buffers
 
 Spec = str | os.PathLike
 _LAST_INT = re.compile(r"(\d+)(?!.*\d)")
@@ -36,7 +41,8 @@ _PRINTF = re.compile(r"%(0?\d*)d")
 
 @dataclass
 class Frame:
-    """One input frame: canonical buffers (C, H, W) float32, all finite."""
+    """One input frame: canonical buffers (C, H, W) float32 ((S, C, H, W) for `samples`),
+    all finite."""
 
     index: int  # frame number from the file name (position in the sequence if it has none)
     path: Path
@@ -185,7 +191,7 @@ def _replace_nonfinite(buffers: dict[str, np.ndarray]) -> tuple[int, tuple[str, 
         if bad.any():
             buf[bad] = 0.0
             names.append(name)
-            px = bad.any(axis=0)
+            px = bad.reshape(-1, *bad.shape[-2:]).any(axis=0)
             bad_pixels = px if bad_pixels is None else bad_pixels | px
     return (0 if bad_pixels is None else int(bad_pixels.sum())), tuple(names)
 
@@ -204,18 +210,28 @@ def read_frame(
     overrides: Mapping[str, str] | None = None,
     expect_size: tuple[int, int] | None = None,
     index: int | None = None,
+    sample_features: Sequence[str] | None = None,
 ) -> Frame:
     """Read one frame into canonical buffers (layout conversion applied, NaN/Inf -> 0).
 
     `expect_size` = (height, width) the sequence has; a different size is an InputError.
+    `sample_features`: also read the `samples` buffer with these per-sample features.
     """
     path = Path(path)
     layout = get_layout(layout) if isinstance(layout, str) else layout
-    buffers = extract_buffers(read_exr(path), layout, overrides, source=str(path))
+    channels = read_exr(path)
+    buffers = extract_buffers(channels, layout, overrides, source=str(path))
     size = buffers["color"].shape[1:]
     _check_size(path, size, expect_size)
+    samples = (
+        None if sample_features is None else read_samples(channels, sample_features, str(path))
+    )
+    if samples is not None:
+        buffers["samples"] = samples
     nonfinite, bad = _replace_nonfinite(buffers)
     buffers = layout.convert(buffers)
+    if sample_features is not None and samples is None:  # S = 1 from the pixel buffers
+        buffers["samples"] = samples_from_buffers(buffers, sample_features)
     n = frame_number(path)
     return Frame(
         index=n if n is not None else (index or 0),
@@ -294,12 +310,13 @@ def iter_sequence(
     spec: Spec | Sequence[Spec],
     layout: Layout | str = "canonical",
     overrides: Mapping[str, str] | None = None,
+    sample_features: Sequence[str] | None = None,
 ) -> Iterator[Frame]:
     """Frames of a sequence in order, after checking all headers (channels, one size)."""
     paths = find_frames(spec)
     size = scan_sequence(paths, layout, overrides)
     for i, p in enumerate(paths):
-        yield read_frame(p, layout, overrides, expect_size=size, index=i)
+        yield read_frame(p, layout, overrides, size, i, sample_features)
 
 
 HALF_MAX = 65504.0

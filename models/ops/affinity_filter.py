@@ -74,3 +74,19 @@ def affinity_filter_reference(
     k = kernel_size_value(kernel_size.detach().cpu().numpy())
     num, den = affinity_sums(image, features, features, bandwidth, k, dilation, centre=centre)
     return num / (EPS + den)
+
+
+def affinity_filter(
+    image: torch.Tensor,
+    features: torch.Tensor,
+    bandwidth: torch.Tensor,
+    centre: torch.Tensor,
+    kernel_size: torch.Tensor,
+    dilation: int = 1,
+) -> torch.Tensor:
+    """One dilated affinity kernel (Isik21 eq. (4), (6)): image (N, C, H, W), features
+    (N, d, H, W), bandwidth a >= 0 and centre weight c (N, 1, H, W), kernel_size a float32
+    scalar tensor (odd) -> (N, C, H, W)."""
+    return affinity_filter_reference(
+        image, features, bandwidth, centre, kernel_size, dilation=dilation
+    )

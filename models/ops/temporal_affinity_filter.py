@@ -35,3 +35,33 @@ def temporal_affinity_filter_reference(
         previous, features, previous_features, temporal_bandwidth, kt, 1, mask=valid
     )
     return (num + t_num) / (EPS + den + t_den)
+
+
+def temporal_affinity_filter(
+    image: torch.Tensor,
+    features: torch.Tensor,
+    bandwidth: torch.Tensor,
+    centre: torch.Tensor,
+    previous: torch.Tensor,
+    previous_features: torch.Tensor,
+    temporal_bandwidth: torch.Tensor,
+    valid: torch.Tensor,
+    kernel_size: torch.Tensor,
+    temporal_size: torch.Tensor,
+    dilation: int = 1,
+) -> torch.Tensor:
+    """Isik21 eq. (8): the last spatial kernel and the temporal kernel over the warped
+    previous output, normalised jointly (shapes: rtdenoise.ops.temporal_affinity_filter)."""
+    return temporal_affinity_filter_reference(
+        image,
+        features,
+        bandwidth,
+        centre,
+        previous,
+        previous_features,
+        temporal_bandwidth,
+        valid,
+        kernel_size,
+        temporal_size,
+        dilation=dilation,
+    )
