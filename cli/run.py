@@ -27,6 +27,7 @@ from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrid
 from rtdenoise.runtime.memory import tune_allocator
 from rtdenoise.runtime.metrics import SequenceMetrics
 from rtdenoise.runtime.preview import write_png
+from rtdenoise.runtime.samples import sample_features_of
 from rtdenoise.runtime.sequence import (
     as_written,
     find_frames,
@@ -118,6 +119,8 @@ def run_sequence(
                 scan_reference(ref, layout, expect_size=size)
     outputs = _plan_outputs(job, references, preview)
     required = tuple(getattr(backend, "required_buffers", ()) or ())
+    config = getattr(backend, "config", {})
+    features = sample_features_of(config) if "samples" in required else None  # per-sample input
 
     scored_out, scored_in = SequenceMetrics(), SequenceMetrics()
     rows: list[dict[str, Any]] = []
@@ -142,7 +145,7 @@ def run_sequence(
         ):
             t0 = time.perf_counter()
             with quiet_native_output():
-                frame = read_frame(path, layout, overrides, expect_size=size, index=i)
+                frame = read_frame(path, layout, overrides, size, i, features)
             if i == 0:
                 lacking = [b for b in required if b not in frame.buffers]
                 if lacking:
@@ -350,6 +353,14 @@ def run(
     threads: Annotated[
         int | None, typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads.")
     ] = None,
+    kernel_size: Annotated[
+        int | None,
+        typer.Option(
+            "--kernel-size",
+            help="Run-time kernel size of models that offer one (odd; e.g. demo:affinity, "
+            "trained at 13: 7..19 without retraining).",
+        ),
+    ] = None,
 ) -> None:
     """Denoise an EXR frame sequence with a real-time denoiser, frame after frame.
 
@@ -374,7 +385,8 @@ def run(
         if metrics_json is not None and metrics_json.is_dir():
             raise InputError(f"{metrics_json}: --metrics-json is a folder, expected a file path")
         jobs, is_demo = _jobs(list(inputs or []), output, reference, demo)
-        backend = load_backend(model, portable=portable, threads=threads)
+        options = {"kernel_size": kernel_size} if kernel_size is not None else None
+        backend = load_backend(model, portable=portable, threads=threads, options=options)
         reports = []
         for job in jobs:
             report = run_sequence(job, backend, lay, overrides, half=half, preview=preview, err=err)

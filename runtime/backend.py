@@ -43,15 +43,24 @@ class PassThrough:
         pass
 
 
-def load_backend(model: str, *, portable: bool = False, threads: int | None = None) -> Backend:
+def load_backend(
+    model: str,
+    *,
+    portable: bool = False,
+    threads: int | None = None,
+    options: Mapping[str, float] | None = None,
+) -> Backend:
     """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
 
     portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
+    options: values of the model's run-time options (e.g. {"kernel_size": 7}).
     """
     if model.strip().lower() == "none":
+        if options:
+            raise InputError(f"--model none has no run-time options ({', '.join(options)})")
         return PassThrough()
     try:
         from .denoiser import Denoiser
     except ImportError as exc:
         raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
-    return Denoiser(model, fast_kernels=not portable, threads=threads)
+    return Denoiser(model, fast_kernels=not portable, threads=threads, overrides=options)

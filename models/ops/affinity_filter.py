@@ -11,7 +11,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from rtdenoise.ops.affinity_filter import EPS, kernel_size_value
+from rtdenoise.ops.affinity_filter import EPS, SPEC, kernel_size_value
 
 from .torch_op import torch_op
 
@@ -86,7 +86,18 @@ def affinity_filter(
 ) -> torch.Tensor:
     """One dilated affinity kernel (Isik21 eq. (4), (6)): image (N, C, H, W), features
     (N, d, H, W), bandwidth a >= 0 and centre weight c (N, 1, H, W), kernel_size a float32
-    scalar tensor (odd) -> (N, C, H, W)."""
+    scalar tensor (odd) -> (N, C, H, W).
+
+    While autograd records on CPU it runs the numba forward / backward (affinity_autograd)."""
+    from .affinity_autograd import AffinityFilterFunction, use_training_kernels
+
+    tensors = (image, features, bandwidth, centre)
+    if use_training_kernels(*tensors):
+        SPEC.validate_call(
+            [tuple(t.shape) for t in (*tensors, kernel_size)], {"dilation": dilation}
+        )
+        k = kernel_size_value(kernel_size.detach().cpu().numpy())
+        return AffinityFilterFunction.apply(*tensors, k, dilation)
     return affinity_filter_reference(
         image, features, bandwidth, centre, kernel_size, dilation=dilation
     )

@@ -6,6 +6,7 @@ from __future__ import annotations
 import torch
 
 from rtdenoise.ops.affinity_filter import EPS, kernel_size_value
+from rtdenoise.ops.temporal_affinity_filter import SPEC
 
 from .affinity_filter import affinity_sums
 from .torch_op import torch_op
@@ -51,7 +52,28 @@ def temporal_affinity_filter(
     dilation: int = 1,
 ) -> torch.Tensor:
     """Isik21 eq. (8): the last spatial kernel and the temporal kernel over the warped
-    previous output, normalised jointly (shapes: rtdenoise.ops.temporal_affinity_filter)."""
+    previous output, normalised jointly (shapes: rtdenoise.ops.temporal_affinity_filter).
+
+    While autograd records on CPU it runs the numba forward / backward (affinity_autograd)."""
+    from .affinity_autograd import TemporalAffinityFilterFunction, use_training_kernels
+
+    tensors = (
+        image,
+        features,
+        bandwidth,
+        centre,
+        previous,
+        previous_features,
+        temporal_bandwidth,
+        valid,
+    )
+    if use_training_kernels(*tensors):
+        sizes = (kernel_size, temporal_size)
+        shapes = [tuple(t.shape) for t in (*tensors, *sizes)]
+        SPEC.validate_call(shapes, {"dilation": dilation})
+        op = SPEC.name
+        k, kt = (kernel_size_value(s.detach().cpu().numpy(), op) for s in sizes)
+        return TemporalAffinityFilterFunction.apply(*tensors, k, kt, dilation)
     return temporal_affinity_filter_reference(
         image,
         features,

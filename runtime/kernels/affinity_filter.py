@@ -3,24 +3,26 @@
 Row-vectorised: one run of up to TILE pixels of an output row per parallel iteration (the rows
 it reads for one tap then fit in the L1 cache). For every tap (i, j) the pixels whose
 neighbour lies inside the image form one contiguous run x in [x0, x1) (taps outside the image
-are not visited: weight 0), processed by branch-free loops over 1-D float32 rows:
+are not visited: weight 0), processed by branch-free loops along the row:
 
-1. the squared feature distance, four feature channels per pass (`_dist4`);
-2. the weight w = exp(-a ||f_p - f_q||^2), fused with the last four channels (`_weights`,
+1. the squared feature distance, four feature channels per pass (`dist4`);
+2. the weight w = exp(-a ||f_p - f_q||^2), fused with the last four channels (`_weights4`,
    `_common.exp_neg`: a polynomial exp that vectorises);
 3. w into the denominator, w times the neighbour into the numerator, three colour channels
-   per pass (`_accumulate`).
+   in one pass (`_accumulate3`; fusing 2 and 3 into one loop was slower: register spills).
 
-The helpers slice the rows to [x0, x1) before looping: indexing with a signed run-time offset
-(`row[x + off]`) makes numba check for negative indices on every element, which stops the
-vectorisation (measured 16x slower). The centre tap starts the sums with c_p (eq. (4)).
+The loops index with unsigned integers (`uintp`): a signed run-time offset (`row[x + off]`)
+makes numba check every index for wrap-around, which stops the vectorisation (measured 16x
+slower), and slicing the rows instead costs reference-count atomics on every slice, which
+the two threads contend for (2.3x slower on 64-pixel rows). The centre tap starts the sums
+with c_p (eq. (4)).
 `affinity_taps`, `start_with_centre` and `normalise` are shared with TemporalAffinityFilter.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, uintp
 
 from rtdenoise.ops.affinity_filter import EPS, kernel_size_value
 
@@ -32,108 +34,78 @@ TILE = 256  # pixels of a row per work unit: its rows of every tap stay in the L
 
 
 @njit(cache=True, fastmath=True)
-def _dist4(dist, feats, guides, c, y, yy, off, x0, x1, first):
+def dist4(dist, feats, guides, c, y, yy, off, x0, x1, first):
     """dist (= or +=) sum_{c' < c + 4} (feats[c', y, x] - guides[c', yy, x + off])^2."""
-    n = x1 - x0
-    dd = dist[x0:x1]
-    a0, a1 = feats[c, y, x0:x1], feats[c + 1, y, x0:x1]
-    a2, a3 = feats[c + 2, y, x0:x1], feats[c + 3, y, x0:x1]
-    b0, b1 = guides[c, yy, x0 + off : x1 + off], guides[c + 1, yy, x0 + off : x1 + off]
-    b2, b3 = guides[c + 2, yy, x0 + off : x1 + off], guides[c + 3, yy, x0 + off : x1 + off]
-    for x in range(n):
-        t0 = a0[x] - b0[x]
-        t1 = a1[x] - b1[x]
-        t2 = a2[x] - b2[x]
-        t3 = a3[x] - b3[x]
+    for x in range(x0, x1):
+        u, v = uintp(x), uintp(x + off)
+        t0 = feats[c, y, u] - guides[c, yy, v]
+        t1 = feats[c + 1, y, u] - guides[c + 1, yy, v]
+        t2 = feats[c + 2, y, u] - guides[c + 2, yy, v]
+        t3 = feats[c + 3, y, u] - guides[c + 3, yy, v]
         s = t0 * t0 + t1 * t1 + t2 * t2 + t3 * t3
-        dd[x] = s if first else dd[x] + s
+        dist[u] = s if first else dist[u] + s
 
 
 @njit(cache=True, fastmath=True)
-def _dist1(dist, feats, guides, c, y, yy, off, x0, x1, first):
+def dist1(dist, feats, guides, c, y, yy, off, x0, x1, first):
     """dist (= or +=) (feats[c, y, x] - guides[c, yy, x + off])^2."""
-    n = x1 - x0
-    dd = dist[x0:x1]
-    a0 = feats[c, y, x0:x1]
-    b0 = guides[c, yy, x0 + off : x1 + off]
-    for x in range(n):
-        t0 = a0[x] - b0[x]
-        dd[x] = t0 * t0 if first else dd[x] + t0 * t0
+    for x in range(x0, x1):
+        u, v = uintp(x), uintp(x + off)
+        t0 = feats[c, y, u] - guides[c, yy, v]
+        dist[u] = t0 * t0 if first else dist[u] + t0 * t0
 
 
 @njit(cache=True, fastmath=True)
-def _weights(weight, dist, a, feats, guides, c, y, yy, off, x0, x1, first):
-    """weight = exp(-a * d) with d = dist (unless first) + the four channels from c."""
-    n = x1 - x0
-    dd, ww, aa = dist[x0:x1], weight[x0:x1], a[x0:x1]
-    a0, a1 = feats[c, y, x0:x1], feats[c + 1, y, x0:x1]
-    a2, a3 = feats[c + 2, y, x0:x1], feats[c + 3, y, x0:x1]
-    b0, b1 = guides[c, yy, x0 + off : x1 + off], guides[c + 1, yy, x0 + off : x1 + off]
-    b2, b3 = guides[c + 2, yy, x0 + off : x1 + off], guides[c + 3, yy, x0 + off : x1 + off]
-    for x in range(n):
-        t0 = a0[x] - b0[x]
-        t1 = a1[x] - b1[x]
-        t2 = a2[x] - b2[x]
-        t3 = a3[x] - b3[x]
+def _weights4(weight, dist, a, feats, guides, c, y, yy, off, x0, x1, first):
+    """The last four feature channels (from c) of the distance, then w = exp(-a d)."""
+    for x in range(x0, x1):
+        u, v = uintp(x), uintp(x + off)
+        t0 = feats[c, y, u] - guides[c, yy, v]
+        t1 = feats[c + 1, y, u] - guides[c + 1, yy, v]
+        t2 = feats[c + 2, y, u] - guides[c + 2, yy, v]
+        t3 = feats[c + 3, y, u] - guides[c + 3, yy, v]
         s = t0 * t0 + t1 * t1 + t2 * t2 + t3 * t3
         if not first:
-            s += dd[x]
-        ww[x] = exp_neg(-aa[x] * s)
-
-
-@njit(cache=True, fastmath=True)
-def _weights_from_dist(weight, dist, a, x0, x1):
-    """weight = exp(-a * dist) (feature counts that are not a multiple of 4)."""
-    n = x1 - x0
-    dd, ww, aa = dist[x0:x1], weight[x0:x1], a[x0:x1]
-    for x in range(n):
-        ww[x] = exp_neg(-aa[x] * dd[x])
-
-
-@njit(cache=True, fastmath=True)
-def _mask(weight, mask, yy, off, x0, x1):
-    """weight[x] *= mask[yy, x + off]."""
-    n = x1 - x0
-    ww = weight[x0:x1]
-    mm = mask[yy, x0 + off : x1 + off]
-    for x in range(n):
-        ww[x] *= mm[x]
+            s += dist[u]
+        weight[u] = exp_neg(-a[u] * s)
 
 
 @njit(cache=True, fastmath=True)
 def _accumulate3(num, den, weight, values, yy, off, x0, x1):
-    """den += w; num[c] += w * values[c, yy, x + off] for c < 3."""
-    n = x1 - x0
-    s0, s1, s2 = num[0, x0:x1], num[1, x0:x1], num[2, x0:x1]
-    dd, ww = den[x0:x1], weight[x0:x1]
-    u0 = values[0, yy, x0 + off : x1 + off]
-    u1 = values[1, yy, x0 + off : x1 + off]
-    u2 = values[2, yy, x0 + off : x1 + off]
-    for x in range(n):
-        w = ww[x]
-        dd[x] += w
-        s0[x] += w * u0[x]
-        s1[x] += w * u1[x]
-        s2[x] += w * u2[x]
+    """den += w; num[c] += w * values[c, yy, x + off] for three channels, one pass."""
+    for x in range(x0, x1):
+        u, v = uintp(x), uintp(x + off)
+        w = weight[u]
+        den[u] += w
+        num[0, u] += w * values[0, yy, v]
+        num[1, u] += w * values[1, yy, v]
+        num[2, u] += w * values[2, yy, v]
 
 
 @njit(cache=True, fastmath=True)
-def _accumulate1(num, weight, values, c, yy, off, x0, x1):
-    """num[c] += w * values[c, yy, x + off]."""
-    n = x1 - x0
-    s0, ww = num[c, x0:x1], weight[x0:x1]
-    u0 = values[c, yy, x0 + off : x1 + off]
-    for x in range(n):
-        s0[x] += ww[x] * u0[x]
+def _weights(weight, dist, a, x0, x1):
+    """weight = exp(-a * dist) (any feature count)."""
+    for x in range(x0, x1):
+        u = uintp(x)
+        weight[u] = exp_neg(-a[u] * dist[u])
 
 
 @njit(cache=True, fastmath=True)
-def _add(den, weight, x0, x1):
-    """den += weight."""
-    n = x1 - x0
-    dd, ww = den[x0:x1], weight[x0:x1]
-    for x in range(n):
-        dd[x] += ww[x]
+def apply_mask(weight, mask, yy, off, x0, x1):
+    """weight[x] *= mask[yy, x + off]."""
+    for x in range(x0, x1):
+        weight[uintp(x)] *= mask[yy, uintp(x + off)]
+
+
+@njit(cache=True, fastmath=True)
+def _accumulate(num, den, weight, values, yy, off, x0, x1):
+    """den += w; num[c] += w * values[c, yy, x + off] for every channel c."""
+    for x in range(x0, x1):
+        den[uintp(x)] += weight[uintp(x)]
+    for c in range(values.shape[0]):
+        for x in range(x0, x1):
+            u, v = uintp(x), uintp(x + off)
+            num[c, u] += weight[u] * values[c, yy, v]
 
 
 @njit(cache=True, fastmath=True)
@@ -165,24 +137,23 @@ def affinity_taps(
             x1 = min(xb, w - off)
             if x1 <= x0:
                 continue
-            # 1-2. w = exp(-a ||f_p - f_q||^2), Isik21 eq. (4) / (7)
+            # 1-2. w = exp(-a ||f_p - f_q||^2) (Isik21 eq. (4) / (7)): the distance four
+            # channels per pass, the last four fused with the exp
             for c in range(0, plain - plain % 4, 4):
-                _dist4(dist, feats, guides, c, y, yy, off, x0, x1, c == 0)
+                dist4(dist, feats, guides, c, y, yy, off, x0, x1, c == 0)
             for c in range(plain - plain % 4, plain):
-                _dist1(dist, feats, guides, c, y, yy, off, x0, x1, c == 0)
+                dist1(dist, feats, guides, c, y, yy, off, x0, x1, c == 0)
             if fused:
-                _weights(weight, dist, a, feats, guides, plain, y, yy, off, x0, x1, plain == 0)
+                _weights4(weight, dist, a, feats, guides, plain, y, yy, off, x0, x1, plain == 0)
             else:
-                _weights_from_dist(weight, dist, a, x0, x1)
+                _weights(weight, dist, a, x0, x1)
             if use_mask:
-                _mask(weight, mask, yy, off, x0, x1)
+                apply_mask(weight, mask, yy, off, x0, x1)
             # 3. the sums of eq. (6) / (8)
             if n_ch == 3:
                 _accumulate3(num, den, weight, values, yy, off, x0, x1)
             else:
-                _add(den, weight, x0, x1)
-                for c in range(n_ch):
-                    _accumulate1(num, weight, values, c, yy, off, x0, x1)
+                _accumulate(num, den, weight, values, yy, off, x0, x1)
 
 
 @njit(cache=True, fastmath=True)
