@@ -118,6 +118,8 @@ def flip(
     for name, arr in buffers.items():
         arr = np.flip(arr, axis=axes).copy()
         if name == SAMPLES:
+            if not sample_features:
+                raise InputError("flipping the samples buffer needs its sample features")
             xs, ys = signed_channels(sample_features)
         else:
             xs, ys = ([0], [1]) if name in SIGNED_BUFFERS else ([], [])
