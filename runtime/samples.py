@@ -119,17 +119,6 @@ def samples_from_buffers(buffers: Mapping[str, np.ndarray], features: Sequence[s
     return np.concatenate([np.asarray(buffers[f], np.float32) for f in features])[None]
 
 
-def frame_samples(
-    channels: Mapping[str, np.ndarray],
-    buffers: Mapping[str, np.ndarray],
-    features: Sequence[str],
-    source: str = "<file>",
-) -> np.ndarray:
-    """The samples buffer of one frame: its sample layers, else S = 1 from its pixel buffers."""
-    samples = read_samples(channels, features, source)
-    return samples if samples is not None else samples_from_buffers(buffers, features)
-
-
 def signed_channels(features: Sequence[str]) -> tuple[list[int], list[int]]:
     """Channels of a sample that change sign under a horizontal / vertical image flip (the x and
     y components of the normal)."""
@@ -151,7 +140,6 @@ __all__ = [
     "check_features",
     "feature_channels",
     "feature_offsets",
-    "frame_samples",
     "radiance_channels",
     "read_samples",
     "sample_channels",
