@@ -1,7 +1,8 @@
 """AffinityFilter at 720p (13 x 13 taps, d = 8 features): the fast kernel, ORT with it, ORT
 portable and torch eager side by side (`denoise-bench op`'s `bench_op`), and the achieved
 GFLOP/s against what ONNX Runtime's own convolutions reach on this machine, measured in the
-same run (a 6-layer 5 x 5 width-14 conv net at 720p).
+same run (a 6-layer 5 x 5 width-14 conv net at 720p, timed alternately with the fast kernel so
+that a change of load on a shared machine hits both).
 
     python scripts/bench_affinity.py [--threads 2] [--repeats 5] [--dilation 1]
 
@@ -67,21 +68,36 @@ def conv_net(layers: int = 6, width: int = 14, k: int = 5) -> tuple[bytes, float
     return model.SerializeToString(), 2.0 * layers * width * width * k * k * H * W
 
 
-def conv_throughput(threads: int, repeats: int) -> tuple[float, float]:
-    """(median ms, GFLOP/s) of ORT's convolutions at 720p."""
+def interleaved(threads: int, repeats: int, dilation: int) -> tuple[float, float, float]:
+    """(conv ms, conv GFLOP/s, fast kernel ms): medians of ORT's 720p conv net and the fast
+    AffinityFilter kernel timed alternately, so that a change of machine load hits both."""
+    import numba
+
+    from rtdenoise.runtime.kernels import KERNELS
+
     data, flops = conv_net()
     so = ort.SessionOptions()
     so.intra_op_num_threads = threads
     sess = ort.InferenceSession(data, so, providers=["CPUExecutionProvider"])
     x = np.random.default_rng(1).random((1, 14, H, W), dtype=np.float32)
+    attrs = {"dilation": dilation}
+    inputs = get_spec("AffinityFilter").example_inputs(
+        (1, 3, H, W), attrs, np.random.default_rng(0)
+    )
+    numba.set_num_threads(threads)
+    kernel = KERNELS["AffinityFilter"]
     sess.run(None, {"x": x})
-    times = []
+    kernel(*inputs, **attrs)
+    conv, fast = [], []
     for _ in range(repeats):
         t0 = time.perf_counter()
         sess.run(None, {"x": x})
-        times.append(time.perf_counter() - t0)
-    ms = float(np.median(times) * 1e3)
-    return ms, flops / (ms * 1e-3) / 1e9
+        t1 = time.perf_counter()
+        kernel(*inputs, **attrs)
+        conv.append(t1 - t0)
+        fast.append(time.perf_counter() - t1)
+    conv_ms = float(np.median(conv) * 1e3)
+    return conv_ms, flops / (conv_ms * 1e-3) / 1e9, float(np.median(fast) * 1e3)
 
 
 def main() -> None:
@@ -91,7 +107,7 @@ def main() -> None:
     parser.add_argument("--dilation", type=int, default=1)
     args = parser.parse_args()
 
-    conv_ms, peak = conv_throughput(args.threads, args.repeats)
+    conv_ms, peak, fast_ms = interleaved(args.threads, args.repeats, args.dilation)
     result = bench_op(
         "AffinityFilter",
         (1, 3, H, W),
@@ -112,6 +128,11 @@ def main() -> None:
         f"AffinityFilter 1x3x{H}x{W}, {k}x{k} taps, d = {d}, dilation {args.dilation}: "
         f"{flops / 1e9:.2f} GFLOP; attainable {flops / peak / 1e6:.0f} ms"
     )
+    print(
+        f"interleaved with the conv net: fast kernel {fast_ms:.0f} ms = "
+        f"{flops / fast_ms / 1e6:.1f} GFLOP/s = {fast_ms / (flops / peak / 1e6):.2f} x attainable"
+    )
+    print("the four forms side by side (denoise-bench op AffinityFilter):")
     print(f"{'form':<14}{'median ms':>10}{'GFLOP/s':>10}{'x attainable':>14}{'max |diff|':>12}")
     for form, ms in result["ms"].items():
         rate = flops / (ms * 1e-3) / 1e9
