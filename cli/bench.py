@@ -12,7 +12,15 @@ from rich.table import Table
 
 from rtdenoise.runtime.memory import tune_allocator
 
-from .common import fail, passive_openmp_threads, user_errors
+from .common import (
+    VersionOption,
+    fail,
+    one_line_warnings,
+    parse_size,
+    passive_openmp_threads,
+    user_errors,
+)
+from .compare import compare_command
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 console = Console()
@@ -26,12 +34,16 @@ LABELS = {
 }
 
 
-def _parse_size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        fail(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720")
-    return h, w
+Threads = Annotated[
+    int | None,
+    typer.Option(min=1, help="Threads for ONNX Runtime and PyTorch (default: their own)."),
+]
+
+
+@app.callback()
+def bench(version: VersionOption = False) -> None:
+    """How fast a denoiser runs at a real frame size, every path side by side. Needs the
+    bench extra (torch, onnx)."""
 
 
 @app.command("model")
@@ -42,7 +54,7 @@ def bench_model(
     ],
     size: Annotated[str, typer.Option(help="Frame size WIDTHxHEIGHT.")] = "1280x720",
     repeats: Annotated[int, typer.Option(help="Timed frames (after one warm-up frame).")] = 5,
-    threads: Annotated[int, typer.Option(help="Threads for ORT and PyTorch (0: default).")] = 0,
+    threads: Threads = None,
     json_path: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
 ) -> None:
     """Time one frame of a denoiser in PyTorch eager (training and deployed form), ONNX
@@ -50,14 +62,14 @@ def bench_model(
     model calls. Medians over REPEATS frames measured in one run; speed depends on the
     machine and its load, so compare the columns, not runs on different days.
     """
-    with user_errors():
+    with user_errors(extra="bench"):
+        w, h = parse_size(size)
         from rtdenoise.export.benchmark import PATHS, benchmark_model
         from rtdenoise.models.checkpoint import load_checkpoint
         from rtdenoise.models.registry import build_model
 
         from .export import resolve_checkpoint
 
-        h, w = _parse_size(size)
         if model.startswith("demo:") or model.endswith(".pt"):
             net, _meta = load_checkpoint(resolve_checkpoint(model))
         else:
@@ -69,7 +81,7 @@ def bench_model(
                 net,
                 (h, w),
                 repeats=repeats,
-                threads=threads or None,
+                threads=threads,
                 progress=lambda msg: status.update(f"benchmarking: {msg}"),
             )
 
@@ -79,7 +91,8 @@ def bench_model(
     for form in forms:
         table.add_column(LABELS[form], justify="right")
     for st in result.stages:
-        label = f"{st['op']} {'x'.join(map(str, st['shape'][2:]))} x{st['calls_per_frame']}"
+        sh, sw = st["shape"][-2:]  # tensors are N, C, H, W; label WIDTHxHEIGHT like --size
+        label = f"{st['op']} {sw}x{sh} x{st['calls_per_frame']}"
         table.add_row(label, *(f"{st['ms'][f]:.1f}" for f in forms))
     table.add_row(
         "whole model",
@@ -101,6 +114,61 @@ def bench_model(
         json_path.write_text(json.dumps(payload, indent=2))
 
 
+@app.command("stages")
+def bench_stages(
+    model: Annotated[
+        str,
+        typer.Argument(help="demo:<family> (its shipped ONNX) or a checkpoint (.pt, exported)."),
+    ],
+    size: Annotated[str, typer.Option(help="Frame size WIDTHxHEIGHT.")] = "1280x720",
+    repeats: Annotated[int, typer.Option(help="Timed frames (after one warm-up frame).")] = 3,
+    threads: Threads = None,
+    json_path: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
+) -> None:
+    """Time each stage of one frame (regression, U-Net, filter, backward + Adam, other) in
+    PyTorch eager and ONNX Runtime with the fast kernels (its node profiler), and the whole
+    frame in ORT portable, in one run, state fed back. For models that mark their stages
+    (crossreg); medians over REPEATS frames."""
+    with user_errors(extra="bench"):
+        w, h = parse_size(size)
+        from rtdenoise.export.onnx_export import export_model
+        from rtdenoise.export.stage_bench import STAGES, benchmark_stages
+        from rtdenoise.models.checkpoint import load_checkpoint
+        from rtdenoise.shipped import demo_model
+
+        from .export import resolve_checkpoint
+
+        net, _meta = load_checkpoint(resolve_checkpoint(model))
+        pad = net.pad_multiple
+        h, w = -(-h // pad) * pad, -(-w // pad) * pad
+        with console.status("benchmarking") as status:
+            if model.startswith("demo:"):
+                onnx_bytes = demo_model(model.split(":", 1)[1], ".onnx").read_bytes()
+            else:
+                status.update("exporting")
+                onnx_bytes = export_model(net).SerializeToString()
+            result = benchmark_stages(
+                net,
+                onnx_bytes,
+                (h, w),
+                repeats=repeats,
+                threads=threads,
+                progress=lambda msg: status.update(f"benchmarking: {msg}"),
+            )
+    table = Table(title=f"{net.family} at {w}x{h}, median ms per frame ({repeats} frames)")
+    table.add_column("stage")
+    for path in result:
+        table.add_column(LABELS[path], justify="right")
+    for stage in STAGES:
+        cells = [result[p]["stages"].get(stage) for p in result]
+        table.add_row(stage, *("" if c is None else f"{c:.0f}" for c in cells))
+    table.add_row("whole frame", *(f"{result[p]['total']:.0f}" for p in result))
+    console.print(table)
+    if json_path:
+        payload = {"family": net.family, "size": [h, w], "repeats": repeats, "paths": result}
+        json_path.write_text(json.dumps(payload, indent=2))
+
+
 @app.command("op")
 def bench_one_op(
     op: Annotated[str, typer.Argument(help="Custom op name, e.g. KernelApply.")],
@@ -111,12 +179,13 @@ def bench_one_op(
         typer.Option("--attr", help="Op attribute NAME=INT (repeatable); default: the op's own."),
     ] = None,
     repeats: Annotated[int, typer.Option(help="Timed calls (after one warm-up call).")] = 5,
-    threads: Annotated[int, typer.Option(help="Threads for ORT and PyTorch (0: default).")] = 0,
+    threads: Threads = None,
 ) -> None:
     """Time one filter stage in its forms: numba kernel called directly, ORT with the fast
     kernel, ORT running the portable function body, PyTorch eager. Medians, one run.
     E.g. `denoise-bench op WeightSharingFilter --attr size_min=13 --attr count=1`."""
-    with user_errors():
+    with user_errors(extra="bench"):
+        w, h = parse_size(size)
         from rtdenoise.export.op_bench import bench_op
         from rtdenoise.ops import SPECS
 
@@ -128,12 +197,11 @@ def bench_one_op(
             if not sep or name not in attrs or not value.lstrip("-").isdigit():
                 fail(f"--attr {item!r}: expected NAME=INT with NAME in {sorted(attrs)}")
             attrs[name] = int(value)
-        h, w = _parse_size(size)
         with console.status(f"benchmarking {op}"):
             result = bench_op(
-                op, (1, channels, h, w), repeats=repeats, attrs=attrs, threads=threads
+                op, (1, channels, h, w), repeats=repeats, attrs=attrs, threads=threads or 0
             )
-    table = Table(title=f"{op} {attrs} on 1x{channels}x{h}x{w}, median ms per call")
+    table = Table(title=f"{op} {attrs} at {w}x{h}, {channels} channels, median ms per call")
     for form in result["ms"]:
         table.add_column(LABELS.get(form, form), justify="right")
     table.add_row(*(f"{ms:.1f}" for ms in result["ms"].values()))
@@ -142,7 +210,11 @@ def bench_one_op(
     console.print(f"largest difference from PyTorch: {worst:.2e}")
 
 
+app.command("compare")(compare_command)
+
+
 def main() -> None:
+    one_line_warnings()
     passive_openmp_threads()
     tune_allocator()  # as denoise-run does: measure what it runs
     app()

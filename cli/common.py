@@ -1,23 +1,59 @@
-"""Helpers shared by the CLI apps: one-line errors, warnings, JSON output."""
+"""Helpers shared by the CLI apps: one-line errors, warnings, JSON output, `--version`,
+the extra a command needs."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import platform
 import sys
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
+from importlib import metadata
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Annotated, Any, NoReturn
 
 import typer
 
+from rtdenoise import __version__
 from rtdenoise.runtime.atomic import write_text_atomic
 from rtdenoise.runtime.errors import InputError
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILURE = 1
+
+# Modules that only an extra installs (pyproject.toml, [project.optional-dependencies]).
+OPTIONAL_MODULES = frozenset({"torch", "onnx", "onnxscript", "mitsuba", "drjit", "pyoidn"})
+# Distributions whose versions `--version` reports (metadata only: nothing is imported).
+REPORTED_VERSIONS = ("onnxruntime", "onnxruntime-extensions", "numba", "numpy", "torch")
+
+
+def version_line() -> str:
+    """`rtdenoise X (Python Y; onnxruntime Z, ...)`: what a bug report needs, torch included
+    when installed, read from package metadata without importing anything."""
+    parts = []
+    for dist in REPORTED_VERSIONS:
+        try:
+            parts.append(f"{dist} {metadata.version(dist)}")
+        except metadata.PackageNotFoundError:
+            parts.append(f"{dist} absent")
+    return f"rtdenoise {__version__} (Python {platform.python_version()}; {', '.join(parts)})"
+
+
+def _show_version(value: bool) -> None:
+    if value:
+        print(version_line())
+        raise typer.Exit()
+
+
+VersionOption = Annotated[
+    bool,
+    typer.Option(
+        "--version", callback=_show_version, is_eager=True, help="Show the version and exit."
+    ),
+]
 
 
 def one_line(exc: BaseException | str) -> str:
@@ -37,14 +73,35 @@ def warn(message: str) -> None:
     print(f"warning: {one_line(message)}", file=sys.stderr, flush=True)
 
 
+def missing_extra_message(exc: ModuleNotFoundError, extra: str) -> str | None:
+    """`no module named 'torch': install the export extra: ...` when `exc` is a module that
+    only an extra installs; None for any other missing module (a broken install)."""
+    root = (exc.name or "").split(".")[0]
+    if root not in OPTIONAL_MODULES:
+        return None
+    return (
+        f"no module named {root!r}: this command needs the {extra} extra: "
+        f"pip install 'rtdenoise[{extra}]'"
+    )
+
+
 @contextmanager
-def user_errors() -> Iterator[None]:
+def user_errors(extra: str | None = None) -> Iterator[None]:
     """Turn bad-input exceptions into one-line errors: exit 2 for input problems
-    (InputError, OSError, ValueError), exit 1 for a processing failure (RuntimeError)."""
+    (InputError, OSError, ValueError), exit 1 for a processing failure (RuntimeError).
+
+    extra: the extra the command needs (pyproject.toml); a missing module of an extra
+    becomes `error: ... pip install 'rtdenoise[<extra>]'` (exit 2).
+    """
     try:
         yield
     except typer.Exit:
         raise
+    except ModuleNotFoundError as exc:
+        message = missing_extra_message(exc, extra) if extra else None
+        if message is None:
+            raise
+        fail(message, EXIT_BAD_INPUT)
     except (InputError, OSError, ValueError, KeyError) as exc:
         fail(exc, EXIT_BAD_INPUT)
     except RuntimeError as exc:
@@ -74,6 +131,14 @@ def quiet_native_output() -> Iterator[None]:
             os.close(fd)
 
 
+def parse_size(text: str, option: str = "--size") -> tuple[int, int]:
+    """`WIDTHxHEIGHT` (e.g. 1280x720) -> (width, height); InputError otherwise."""
+    w, sep, h = text.strip().lower().partition("x")
+    if not (sep and w.strip().isdigit() and h.strip().isdigit() and int(w) > 0 and int(h) > 0):
+        raise InputError(f"{option} {text!r}: expected WIDTHxHEIGHT, e.g. 1280x720")
+    return int(w), int(h)
+
+
 def json_safe(obj: Any) -> Any:
     """Replace non-finite floats (inf PSNR of identical images, NaN) by None; numpy -> Python."""
     if isinstance(obj, dict):
@@ -101,6 +166,12 @@ def write_json(path: str | os.PathLike, obj: Any) -> Path:
     return path
 
 
+def one_line_warnings() -> None:
+    """Show Python warnings (e.g. the fast kernels' fallback) as `warning: <message>` lines on
+    stderr, like the CLI's own, instead of file:line plus source. Process-wide: mains only."""
+    warnings.showwarning = lambda message, *_args, **_kw: warn(str(message))
+
+
 def passive_openmp_threads() -> None:
     """Let idle OpenMP workers sleep instead of spin (unless the user chose otherwise).
 
@@ -108,3 +179,27 @@ def passive_openmp_threads() -> None:
     (21 s vs 0.5 s, measured). libgomp reads it when torch loads: call before `import torch`.
     """
     os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+
+def _hide_flag_types() -> None:
+    """Show no `<bool>` after plain flags (`--preview`, `--help`) in rich help, as click's
+    plain help does: typer >= 0.20 (vendored click) prints their type there. Process-wide,
+    idempotent; a typer without `TyperOption.display_type_rich` is left alone."""
+    try:
+        from typer.core import TyperOption
+    except ImportError:  # pragma: no cover - other typer layouts
+        return
+    original = getattr(TyperOption, "display_type_rich", None)
+    if original is None or getattr(original, "hides_flag_types", False):
+        return
+
+    def display_type_rich(self: Any, ctx: Any) -> str | None:
+        if getattr(self, "is_flag", False) and self.metavar is None:
+            return None
+        return original(self, ctx)
+
+    display_type_rich.hides_flag_types = True  # type: ignore[attr-defined]
+    TyperOption.display_type_rich = display_type_rich
+
+
+_hide_flag_types()

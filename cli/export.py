@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .common import fail, passive_openmp_threads, user_errors
+from .common import VersionOption, fail, one_line_warnings, passive_openmp_threads, user_errors
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 console = Console()
@@ -40,6 +40,7 @@ def export(
     tolerance: Annotated[
         float, typer.Option(help="Max error |ort-torch|/(1+|torch|) accepted on any frame.")
     ] = 1e-4,
+    version: VersionOption = False,
 ) -> None:
     """Export a trained denoiser to ONNX and validate it before writing.
 
@@ -47,11 +48,11 @@ def export(
     `rtdenoise` domain, each shipped with a model-local function body so that any stock
     ONNX Runtime runs the file. RepVGG/BatchNorm branches are folded first. The file is
     written only if ONNX Runtime (fast kernels and portable path) matches PyTorch over a
-    multi-frame sequence with state fed back.
+    multi-frame sequence with state fed back. Needs the export extra (torch, onnx).
     """
-    from rtdenoise.export.pipeline import export_checkpoint
+    with user_errors(extra="export"):
+        from rtdenoise.export.pipeline import export_checkpoint
 
-    with user_errors():
         ckpt = resolve_checkpoint(checkpoint)
         if output.is_dir():
             fail(f"{output}: is a folder; give the .onnx file to write")
@@ -81,6 +82,7 @@ def export(
 
 
 def main() -> None:
+    one_line_warnings()
     passive_openmp_threads()
     app()
 

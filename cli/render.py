@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import re
 import time
 import warnings
 from pathlib import Path
@@ -21,6 +20,7 @@ from rich.progress import (
 
 from ..datagen.render import RenderConfig, derive_seed, render_sequence
 from ..datagen.variant import SUPPORTED_VARIANTS, select_variant
+from .common import VersionOption, one_line_warnings, parse_size, user_errors
 
 HELP = """Render N random animated scenes (camera orbit, Mitsuba 3 path tracer) into
 OUT_DIR/seq_XXX/, one folder per sequence, XXX = sequence index.
@@ -41,19 +41,16 @@ Each folder holds, for frame NNNN (0-based):
 Sequence i uses a scene seed derived from (--seed, i), so a job can be split:
 e.g. `--sequences 12 --start-index 0` and `--sequences 12 --start-index 12`
 give the same 24 sequences as one run. Complete folders are skipped unless
---overwrite.
+--overwrite. Needs the data extra (mitsuba).
 """
 
 app = typer.Typer(add_completion=False, rich_markup_mode=None)
 console = Console(stderr=True)
 
 
-def parse_size(size: str) -> tuple[int, int]:
-    """'WxH' -> (W, H)."""
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", size)
-    if not m:
-        raise typer.BadParameter(f"expected WIDTHxHEIGHT such as 64x64, got {size!r}")
-    return int(m.group(1)), int(m.group(2))
+def _warn(message: str) -> None:
+    """A yellow `warning: ...` line; the message is not read as markup (`[data]` stays)."""
+    console.print(f"warning: {message}", style="yellow", markup=False, highlight=False)
 
 
 def _check_range(name: str, value: int, lo: int, hi: int) -> None:
@@ -90,9 +87,11 @@ def render(
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Re-render complete ones.")
     ] = False,
+    version: VersionOption = False,
 ) -> None:
     if size is not None:
-        width, height = parse_size(size)
+        with user_errors():
+            width, height = parse_size(size)
     _check_range("--sequences", sequences, 1, 100_000)
     _check_range("--frames", frames, 1, 100_000)
     _check_range("width", width, 8, 16384)
@@ -105,11 +104,8 @@ def render(
         raise typer.BadParameter(f"--variant must be one of {SUPPORTED_VARIANTS}, got {variant!r}")
     if out_dir.exists() and not out_dir.is_dir():
         raise typer.BadParameter(f"{out_dir} exists and is not a folder")
-    try:
-        used = select_variant(variant, warn=lambda m: console.print(f"[yellow]warning:[/] {m}"))
-    except ImportError as exc:
-        console.print(f"[red]error:[/] {exc}")
-        raise typer.Exit(1) from exc
+    with user_errors(extra="data"):
+        used = select_variant(variant, warn=_warn)
 
     cfg = RenderConfig(
         width=width,
@@ -149,7 +145,7 @@ def render(
                     meta_extra={"job": {"base_seed": seed, "index": i}},
                 )
             for w in caught:
-                console.print(f"[yellow]warning:[/] {w.message}")
+                _warn(str(w.message))
     console.print(
         f"rendered {len(todo)} sequence(s) of {frames} frame(s) at {width}x{height}, "
         f"{spp_ref} spp references, variant {used}, in {time.perf_counter() - start:.1f} s "
@@ -159,6 +155,7 @@ def render(
 
 def main() -> None:
     """Console-script entry point."""
+    one_line_warnings()
     app()
 
 

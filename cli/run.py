@@ -8,9 +8,6 @@ and the noisy input against references when there are any.
 
 from __future__ import annotations
 
-import statistics
-import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -20,30 +17,24 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from rtdenoise.cli.common import quiet_native_output, user_errors, warn, write_json
+from rtdenoise.cli.common import (
+    VersionOption,
+    one_line_warnings,
+    quiet_native_output,
+    user_errors,
+    warn,
+    write_json,
+)
 from rtdenoise.runtime.backend import Backend, load_backend
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
 from rtdenoise.runtime.memory import tune_allocator
-from rtdenoise.runtime.metrics import SequenceMetrics
-from rtdenoise.runtime.preview import write_png
-from rtdenoise.runtime.samples import sample_features_of
-from rtdenoise.runtime.sequence import (
-    as_written,
-    find_frames,
-    match_references,
-    read_frame,
-    read_reference,
-    scan_reference,
-    scan_sequence,
-    write_output,
-)
+from rtdenoise.runtime.run import METRIC_KEYS, Job, check_out_dir, run_sequence
+from rtdenoise.runtime.sequence import find_frames, group_shots
 
 # The model used when --model is not given: the shipped AFN demo (Lee24).
 DEFAULT_MODEL = "demo:afn"
-METRIC_KEYS = ("psnr", "ssim", "smape", "relmse")
 TABLE_MAX_FRAMES = 12  # per-frame rows up to this many frames, else only the mean
-MAX_WARNINGS = 10
 
 _LAYOUT_HELP = "; ".join(f"**{name}**: {lay.description}" for name, lay in LAYOUTS.items())
 
@@ -55,78 +46,23 @@ app = typer.Typer(
 )
 
 
-@dataclass
-class Job:
-    """One sequence to denoise."""
-
-    name: str
-    frames: list[Path]
-    reference: str | None  # reference spec, None = ref_NNNN.exr beside each frame
-    out_dir: Path
-
-
-def _check_out_dir(out_dir: Path) -> None:
-    if out_dir.exists() and not out_dir.is_dir():
-        raise InputError(f"{out_dir}: output folder is a file")
-
-
-def _plan_outputs(job: Job, references: list[Path | None], preview: bool) -> list[Path]:
-    """OUT/<input name> for every frame; refuse duplicates and overwriting an input."""
-    outputs = [job.out_dir / p.name for p in job.frames]
-    seen: dict[Path, Path] = {}
-    inputs = {p.resolve() for p in job.frames} | {r.resolve() for r in references if r}
-    for src, out in zip(job.frames, outputs, strict=True):
-        if out in seen:
-            raise InputError(f"{src} and {seen[out]} would both be written to {out}")
-        seen[out] = src
-        targets = [out] + ([out.with_suffix(".png")] if preview else [])
-        for t in targets:
-            if t.resolve() in inputs:
-                raise InputError(f"{t}: writing the output would overwrite an input file")
-    return outputs
-
-
 def _format(value: float | None, key: str) -> str:
     if value is None or not np.isfinite(value):
         return "inf" if value is not None and value > 0 else "-"
     return f"{value:.2f}" if key == "psnr" else f"{value:.4f}"
 
 
-def run_sequence(
+def run_with_progress(
     job: Job,
     backend: Backend,
     layout: Layout,
     overrides: dict[str, str],
     *,
-    half: bool = True,
-    preview: bool = False,
-    err: Console | None = None,
+    half: bool,
+    preview: bool,
+    err: Console,
 ) -> dict[str, Any]:
-    """Denoise one sequence; returns its report (the metrics JSON of one sequence)."""
-    err = err or Console(stderr=True)
-    _check_out_dir(job.out_dir)
-    with quiet_native_output():
-        size = scan_sequence(job.frames, layout, overrides)
-    references = match_references(job.frames, job.reference)
-    if job.reference is not None and not any(references):
-        raise InputError(f"{job.reference}: no reference matches the frame numbers of {job.name}")
-    missing_refs = sum(r is None for r in references)
-    if any(references) and missing_refs:
-        warn(f"{job.name}: {missing_refs} of {len(job.frames)} frames have no reference")
-    with quiet_native_output():
-        for ref in references:
-            if ref is not None:
-                scan_reference(ref, layout, expect_size=size)
-    outputs = _plan_outputs(job, references, preview)
-    required = tuple(getattr(backend, "required_buffers", ()) or ())
-    config = getattr(backend, "config", {})
-    features = sample_features_of(config) if "samples" in required else None  # per-sample input
-
-    scored_out, scored_in = SequenceMetrics(), SequenceMetrics()
-    rows: list[dict[str, Any]] = []
-    times: dict[str, list[float]] = {"read": [], "denoise": [], "write": []}
-    warnings = 0
-    backend.reset()
+    """`run_sequence` with a progress bar on a terminal and warnings on stderr."""
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -139,88 +75,22 @@ def run_sequence(
     )
     with progress:
         task = progress.add_task(job.name, total=len(job.frames))
-        previous_scored = False
-        for i, (path, ref, out_path) in enumerate(
-            zip(job.frames, references, outputs, strict=True)
-        ):
-            t0 = time.perf_counter()
-            with quiet_native_output():
-                frame = read_frame(path, layout, overrides, size, i, features)
-            if i == 0:
-                lacking = [b for b in required if b not in frame.buffers]
-                if lacking:
-                    raise InputError(
-                        f"{path}: the model needs buffer {', '.join(map(repr, lacking))}, which "
-                        f"layout {layout.name} did not find (use --channel BUFFER=LAYER)"
-                    )
-            t1 = time.perf_counter()
-            out = np.asarray(backend.process(frame.buffers), dtype=np.float32)
-            if out.ndim == 4 and out.shape[0] == 1:
-                out = out[0]
-            if out.shape != (3, *size):
-                raise RuntimeError(
-                    f"{path}: the model returned shape {out.shape}, not (3, *{size})"
-                )
-            bad_out = int((~np.isfinite(out)).any(axis=0).sum())
-            if bad_out:
-                out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
-            t2 = time.perf_counter()
-            write_output(out_path, out, half=half)
-            if preview:
-                write_png(out_path.with_suffix(".png"), out)
-            t3 = time.perf_counter()
-            for key, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2), strict=True):
-                times[key].append(dt * 1e3)
 
-            if frame.nonfinite or bad_out:
-                warnings += 1
-                if warnings <= MAX_WARNINGS:
-                    parts = []
-                    if frame.nonfinite:
-                        parts.append(
-                            f"{frame.nonfinite} pixels with NaN/Inf in "
-                            f"{', '.join(frame.nonfinite_buffers)} replaced by 0"
-                        )
-                    if bad_out:
-                        parts.append(f"{bad_out} non-finite output pixels replaced by 0")
-                    warn(f"{path}: " + "; ".join(parts))
-            row: dict[str, Any] = {
-                "index": frame.index,
-                "file": str(path),
-                "output": str(out_path),
-                "reference": str(ref) if ref else None,
-                "nonfinite": frame.nonfinite,
-            }
-            if ref is not None:
-                with quiet_native_output():
-                    target = read_reference(ref, layout, expect_size=size)
-                # Score what was written: the half-float file when --half.
-                written = as_written(out, half)
-                row.update(scored_out.add(written, target, consecutive=previous_scored))
-                row["input"] = scored_in.add(
-                    frame.buffers["color"], target, consecutive=previous_scored
-                )
-            else:
-                row.update(dict.fromkeys(METRIC_KEYS))
-                row["input"] = None
-            previous_scored = ref is not None
-            rows.append(row)
+        def advance() -> None:
             progress.advance(task)
             progress.refresh()
-    if warnings > MAX_WARNINGS:
-        warn(f"{job.name}: {warnings - MAX_WARNINGS} more frames had NaN/Inf values")
 
-    out_summary, in_summary = scored_out.summary(), scored_in.summary()
-    return {
-        "name": job.name,
-        "size": list(size),
-        "frames": rows,
-        "mean": {k: out_summary[k] for k in METRIC_KEYS} if out_summary else None,
-        "trmae": out_summary.get("trmae"),
-        "input": in_summary or None,
-        "nonfinite": sum(r["nonfinite"] for r in rows),
-        "timing_ms": {k: statistics.median(v) if v else None for k, v in times.items()},
-    }
+        return run_sequence(
+            job,
+            backend,
+            layout,
+            overrides,
+            half=half,
+            preview=preview,
+            on_frame=advance,
+            on_warning=warn,
+            reading=quiet_native_output,
+        )
 
 
 def print_report(report: dict[str, Any], model: str, console: Console) -> None:
@@ -260,6 +130,7 @@ def print_report(report: dict[str, Any], model: str, console: Console) -> None:
 def _jobs(
     inputs: list[str], output: Path, reference: str | None, demo: bool
 ) -> tuple[list[Job], bool]:
+    """The sequences to denoise, and whether they are several (each into OUT/<shot>/)."""
     if demo:
         if inputs or reference:
             raise InputError("--demo takes no INPUT or --reference (it uses its own)")
@@ -271,9 +142,28 @@ def _jobs(
         return [Job(s.name, find_frames(s), None, output / s.name) for s in seqs], True
     if not inputs:
         raise InputError("give an INPUT sequence (folder, quoted glob or printf pattern) or --demo")
-    frames = find_frames(inputs)
-    name = inputs[0] if len(inputs) == 1 else f"{len(frames)} frames"
-    return [Job(name, frames, reference, output)], False
+    shots = group_shots(inputs)
+    if len(shots) == 1:
+        name = inputs[0] if len(inputs) == 1 else shots[0][0]
+        return [Job(name, find_frames(shots[0][1]), reference, output)], False
+    if reference is not None:
+        raise InputError(
+            f"--reference names the references of one shot, got {len(shots)} shots; "
+            "put ref_NNNN.exr beside each shot's frames instead"
+        )
+    return [Job(name, find_frames(specs), None, output / name) for name, specs in shots], True
+
+
+def _show_layout(value: str | None) -> None:
+    """`--show-layout`: print the layout file, to copy and edit, and exit."""
+    if value is None:
+        return
+    with user_errors():
+        path = get_layout(value).path
+        if path is None:
+            raise InputError(f"layout {value!r} has no file")
+        print(path.read_text(encoding="utf-8"), end="")
+    raise typer.Exit()
 
 
 @app.command(
@@ -286,14 +176,19 @@ def run(
         typer.Argument(
             metavar="INPUT",
             help="Frames: a folder (its `*.exr` except `ref_*`), a quoted glob (`'shots/f_*.exr'`)"
-            " or a printf pattern (`shots/f_%04d.exr`). Ordered by the last number in the name.",
+            " or a printf pattern (`shots/f_%04d.exr`). Ordered by the last number in the name. "
+            "Several = several shots, each its own sequence (state reset) into `OUT/<shot>/`; "
+            "EXR files listed one by one are one shot per folder.",
             show_default=False,
         ),
     ] = None,
     output: Annotated[
         Path | None,
         typer.Option(
-            "-o", "--output", help="Output folder (required): `OUT/<input name>.exr` (R,G,B)."
+            "-o",
+            "--output",
+            help="Output folder (required): `OUT/<input name>.exr` (R,G,B); "
+            "`OUT/<shot>/<input name>.exr` with several shots.",
         ),
     ] = None,
     model: Annotated[
@@ -307,7 +202,12 @@ def run(
     ] = DEFAULT_MODEL,
     layout: Annotated[
         str,
-        typer.Option("--layout", "-l", help="Channel layout: " + ", ".join(LAYOUTS) + "."),
+        typer.Option(
+            "--layout",
+            "-l",
+            help="Channel layout: a preset (" + ", ".join(LAYOUTS) + ") or a layout file "
+            "`my_renderer.toml` (docs/layouts.md; start from `--show-layout blender`).",
+        ),
     ] = "canonical",
     channel: Annotated[
         list[str] | None,
@@ -351,8 +251,47 @@ def run(
         ),
     ] = False,
     threads: Annotated[
-        int | None, typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads.")
+        int | None,
+        typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads (default: all)."),
     ] = None,
+    provider: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--provider",
+            "-p",
+            metavar="NAME",
+            help="ONNX Runtime execution provider, in order of preference (repeatable): cpu "
+            "(default), cuda, tensorrt, dml, coreml, openvino or a full name "
+            "(`CUDAExecutionProvider`); CPU stays the fallback. CUDA and TensorRT need the "
+            "onnxruntime-gpu package, DirectML onnxruntime-directml.",
+        ),
+    ] = None,
+    show_layout: Annotated[
+        str | None,
+        typer.Option(
+            "--show-layout",
+            metavar="LAYOUT",
+            callback=_show_layout,
+            is_eager=True,
+            help="Print a layout file (a preset's name or a .toml path) and exit: "
+            "`denoise-run --show-layout blender > my_renderer.toml`, then edit.",
+        ),
+    ] = None,
+    version: VersionOption = False,
+    online: Annotated[
+        bool,
+        typer.Option(
+            "--online/--no-online",
+            help="A model that learns while it runs (e.g. crossreg) takes its update step "
+            "(default), or keeps its weights frozen.",
+        ),
+    ] = True,
+    learn_every: Annotated[
+        int,
+        typer.Option(
+            "--learn-every", min=1, help="Online learning: update on every N-th frame only."
+        ),
+    ] = 1,
     kernel_size: Annotated[
         int | None,
         typer.Option(
@@ -381,25 +320,60 @@ def run(
             raise InputError("missing option -o/--output (the output folder)")
         overrides = parse_overrides(channel)
         lay = get_layout(layout)
-        _check_out_dir(output)
+        check_out_dir(output)
         if metrics_json is not None and metrics_json.is_dir():
             raise InputError(f"{metrics_json}: --metrics-json is a folder, expected a file path")
-        jobs, is_demo = _jobs(list(inputs or []), output, reference, demo)
-        options = {"kernel_size": kernel_size} if kernel_size is not None else None
-        backend = load_backend(model, portable=portable, threads=threads, options=options)
+        jobs, several = _jobs(list(inputs or []), output, reference, demo)
+        backend = load_backend(
+            model,
+            portable=portable,
+            threads=threads,
+            providers=provider,
+            learn=online,
+            learn_every=learn_every,
+            options={"kernel_size": kernel_size} if kernel_size is not None else None,
+        )
         reports = []
         for job in jobs:
-            report = run_sequence(job, backend, lay, overrides, half=half, preview=preview, err=err)
+            report = run_with_progress(
+                job, backend, lay, overrides, half=half, preview=preview, err=err
+            )
+            report["online"] = online_summary(backend)
             print_report(report, model, out)
+            if report["online"]:
+                print_online(report["online"], out)
             reports.append(report)
         if len(reports) > 1:
             print_overall(reports, model, out)
         if metrics_json is not None:
-            if is_demo:
-                payload: dict[str, Any] = {"model": model, "sequences": reports}
+            if several:
+                payload: dict[str, Any] = {"model": model, "layout": lay.name, "sequences": reports}
             else:
                 payload = {"model": model, "layout": lay.name, **reports[0]}
             write_json(metrics_json, payload)
+
+
+def online_summary(backend: Backend) -> dict[str, Any] | None:
+    """Steps taken and last loss of a model that learns while it runs (None otherwise)."""
+    spec = getattr(backend, "online", None)
+    if not spec:
+        return None
+    summary: dict[str, Any] = {"learn": backend.learn, "learn_every": backend.learn_every}
+    for key in ("step", "loss"):
+        if spec.get(key):
+            summary[key] = float(backend.state_value(spec[key]).ravel()[0])
+    return summary
+
+
+def print_online(summary: dict[str, Any], console: Console) -> None:
+    if not summary["learn"]:
+        console.print("online learning off (--no-online): weights frozen at the model's own")
+        return
+    every = f" (every {summary['learn_every']} frames)" if summary["learn_every"] > 1 else ""
+    console.print(
+        f"online learning{every}: {summary.get('step', 0):.0f} update steps in this sequence, "
+        f"last frame's loss {summary.get('loss', float('nan')):.4f}"
+    )
 
 
 def print_overall(reports: list[dict[str, Any]], model: str, console: Console) -> None:
@@ -417,10 +391,11 @@ def print_overall(reports: list[dict[str, Any]], model: str, console: Console) -
 
 def main() -> None:
     """Console script entry point."""
+    one_line_warnings()
     # A program denoising frame after frame: reuse large blocks instead of fresh mmaps that
     # page-fault on every frame (process-wide, so the CLI decides it, not the library).
     tune_allocator()
     app()
 
 
-__all__ = ["DEFAULT_MODEL", "Job", "app", "main", "print_report", "run_sequence"]
+__all__ = ["DEFAULT_MODEL", "app", "main", "print_report", "run_with_progress"]

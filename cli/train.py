@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import pkgutil
 import shlex
 import sys
 from pathlib import Path
@@ -10,13 +12,27 @@ from typing import Annotated
 
 import typer
 
-from rtdenoise.cli.common import fail, passive_openmp_threads, user_errors
+from rtdenoise.cli.common import (
+    VersionOption,
+    fail,
+    one_line_warnings,
+    passive_openmp_threads,
+    user_errors,
+)
 
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     rich_markup_mode="markdown",
 )
+
+
+def family_names() -> list[str]:
+    """The modules of `rtdenoise.models.families`, one per family, found without importing
+    them (so without torch): `--help` lists them even where the train extra is missing."""
+    spec = importlib.util.find_spec("rtdenoise.models.families")
+    locations = spec.submodule_search_locations if spec else None
+    return sorted(m.name for m in pkgutil.iter_modules(locations or []) if not m.ispkg)
 
 
 def _parse_config(text: str | None) -> dict | None:
@@ -59,9 +75,9 @@ def train_command(
         typer.Argument(metavar="SEQ_DIR", help="Training sequence folders (canonical layout)."),
     ],
     output: Annotated[Path, typer.Option("--output", "-o", help="Checkpoint to write (.pt).")],
-    family: Annotated[str, typer.Option(help="Model family (see rtdenoise.models.registry).")] = (
-        "afn"
-    ),
+    family: Annotated[
+        str, typer.Option(help="Model family: " + ", ".join(family_names()) + ".")
+    ] = "afn",
     steps: Annotated[int, typer.Option(min=1, help="Total optimisation steps.")] = 1000,
     crop: Annotated[int, typer.Option(min=8, help="Crop size in pixels.")] = 128,
     frames: Annotated[int, typer.Option(min=1, help="Frames per clip.")] = 8,
@@ -97,6 +113,7 @@ def train_command(
             help="Per-sample models: sample counts S drawn per batch, e.g. 1,2,4 (default: all)."
         ),
     ] = None,
+    version: VersionOption = False,
 ) -> None:
     """Train a denoiser on sequences in the canonical EXR layout and write a checkpoint.
 
@@ -109,11 +126,12 @@ def train_command(
     its first frame) and minimises SMAPE (Lee24 eq. 5) + --temporal-weight x temporal SMAPE
     (Isik21 eq. 12) with Adam. The checkpoint {family, config, state_dict, meta} is written
     atomically every --save-every steps and at the end; --resume continues a run exactly.
+    Needs the train extra (torch).
     """
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
     sample_counts = _parse_counts(samples) if samples else ()
-    with user_errors():
+    with user_errors(extra="train"):
         from rtdenoise.models.train import TrainSettings, train
 
         settings = TrainSettings(
@@ -151,6 +169,7 @@ def train_command(
 
 def main() -> None:
     """Console-script entry point."""
+    one_line_warnings()
     passive_openmp_threads()
     app()
 

@@ -29,12 +29,13 @@ _PROBE = (
 
 
 def require_mitsuba():
-    """Import mitsuba or raise ImportError with install advice."""
+    """Import mitsuba or raise ModuleNotFoundError (name 'mitsuba') with install advice."""
     try:
         import mitsuba as mi
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "mitsuba is not installed: install the data extra with `pip install rtdenoise[data]`"
+    except ImportError as exc:
+        raise ModuleNotFoundError(
+            "mitsuba is not installed: install the data extra: pip install 'rtdenoise[data]'",
+            name="mitsuba",
         ) from exc
     return mi
 

@@ -15,9 +15,8 @@ import torch
 
 from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.frame_loop import FrameLoop
-from rtdenoise.runtime.contract import SAMPLES
 from rtdenoise.runtime.denoiser import Denoiser
-from rtdenoise.runtime.samples import DEFAULT_SAMPLE_FEATURES
+from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -65,47 +64,3 @@ def validate(
             for frame, ref in zip(frames, reference, strict=True)
         ]
     return report
-
-
-def synthetic_frames(
-    inputs: Sequence[str],
-    n: int,
-    h: int,
-    w: int,
-    seed: int = 0,
-    sample_features: Sequence[str] = DEFAULT_SAMPLE_FEATURES,
-    samples: int = 2,
-) -> list[dict[str, np.ndarray]]:
-    """A moving sequence for when no real one is at hand: smooth scene, noisy color, 1 px pan.
-
-    `samples` (when listed in `inputs`): S = `samples` noisy samples of the features
-    `sample_features` (whose mean is `color`)."""
-    rng = np.random.default_rng(seed)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    frames = []
-    for t in range(n):
-        phase = xx + t
-        albedo = np.stack([0.5 + 0.4 * np.sin(phase / 7 + c) for c in range(3)]).astype(np.float32)
-        shading = (1.0 + np.cos(yy / 9)[None] * 0.5).astype(np.float32)
-        noise = rng.exponential(1.0, size=(3, h, w)).astype(np.float32)
-        buffers = {
-            "color": albedo * shading * noise,
-            "color_b": albedo * shading * rng.exponential(1.0, size=(3, h, w)).astype(np.float32),
-            "albedo": albedo,
-            "normal": np.stack([np.zeros_like(xx), np.zeros_like(xx), np.ones_like(xx)]),
-            "depth": (5.0 + yy / h)[None].astype(np.float32),
-            "motion": np.stack([np.ones_like(xx), np.zeros_like(xx)]).astype(np.float32),
-        }
-        if SAMPLES in inputs:
-            noise_s = rng.exponential(1.0, size=(samples, 3, h, w)).astype(np.float32)
-            colors = albedo * shading * noise_s
-            buffers["color"] = colors.mean(axis=0)
-            per_sample = [
-                colors
-                if f == "color"
-                else np.broadcast_to(buffers[f], (samples, *buffers[f].shape))
-                for f in sample_features
-            ]
-            buffers[SAMPLES] = np.ascontiguousarray(np.concatenate(per_sample, axis=1))
-        frames.append({k: buffers[k] for k in inputs if k in buffers})
-    return frames

@@ -60,6 +60,17 @@ class FamilyConfig:
         config.validate()
         return config
 
+    @classmethod
+    def of(cls, config: FamilyConfig | dict | None) -> FamilyConfig:
+        """`config` as a validated instance of this class (a dict or None goes through
+        `from_dict`); what a model's constructor calls."""
+        if isinstance(config, cls):
+            config.validate()
+            return config
+        if config is not None and not isinstance(config, dict):
+            raise TypeError(f"{cls.family} config must be a {cls.__name__} or a dict")
+        return cls.from_dict(config)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict (tuples as lists) that `from_dict` turns back into this config."""
         return {
@@ -126,13 +137,20 @@ class DenoiserModel(nn.Module):
     ) -> dict[str, torch.Tensor]:
         """Zero state for an N x H x W sequence (what the executor feeds on frame 0)."""
         return {
-            s.name: torch.zeros(n, s.channels, h // s.scale, w // s.scale, device=device)
+            s.name: torch.zeros(n, s.channels, *s.spatial(h, w), device=device)
             for s in self.state_specs
         }
 
     def config(self) -> dict:
         """The JSON-able constructor arguments (stored in checkpoints and ONNX metadata)."""
         return self.cfg.to_dict()
+
+    def export_module(self, contract_module: nn.Module, example_args: tuple) -> nn.Module:
+        """What the ONNX exporter traces: `contract_module` (this model behind the contract's
+        positional inputs) by default. A family whose forward `torch.export` cannot trace (online
+        learning calls `torch.autograd.grad`) returns an equivalent module it can trace, e.g.
+        `models.online.traced_step(contract_module, example_args)`."""
+        return contract_module
 
     def declaration(self) -> Declaration:
         """What this model declares under the ONNX contract (written into its export)."""

@@ -25,15 +25,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from rtdenoise.runtime.contract import SAMPLES
+from rtdenoise.runtime.contract import RADIANCE_BUFFERS, SAMPLES, SCREEN_XY_BUFFERS
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.samples import radiance_channels, signed_channels
 from rtdenoise.runtime.sequence import find_frames, find_reference, read_frame, read_reference
 
-# Buffers whose x / y components flip sign with the image (channel 0 = x, 1 = y).
-SIGNED_BUFFERS = ("motion", "normal")
-# Buffers that carry radiance (scaled by the brightness augmentation with the reference).
-RADIANCE_BUFFERS = ("color", "color_b")
+# Buffers whose x / y components flip sign with the image (channel 0 = x, 1 = y), and the
+# ones that carry radiance (scaled by the brightness augmentation with the reference).
+SIGNED_BUFFERS = SCREEN_XY_BUFFERS
 
 
 @dataclass

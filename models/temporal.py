@@ -1,6 +1,7 @@
-"""Temporal reprojection, history validity and accumulation (TA) in standard torch ops.
+"""Temporal reprojection, history validity and accumulation (TA), for the exported graph.
 
-Everything here exports to standard ONNX ops (GridSample opset 16+, Where, ReduceSum, ...):
+The warp is the custom op `Reproject` (bilinear, border-clamped: rtdenoise.ops.reproject,
+`reproject` re-exported here); the rest exports to standard ONNX ops (Where, ReduceSum, ...):
 no Python branching on tensor values, sizes only through tensor shape ops, so it can live
 inside an exported model graph with dynamic H and W.
 
@@ -22,7 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
+
+from .ops.reproject import reproject
 
 
 @dataclass(frozen=True)
@@ -35,19 +37,6 @@ class TemporalConfig:
     max_history: float = 64.0  # history length is clamped (keeps the state bounded)
 
 
-def pixel_grid(motion: torch.Tensor) -> torch.Tensor:
-    """grid_sample coordinates (N, H, W, 2) of `current + motion` (align_corners=False)."""
-    h, w = motion.shape[-2], motion.shape[-1]
-    xs = torch.arange(w, device=motion.device, dtype=motion.dtype)
-    ys = torch.arange(h, device=motion.device, dtype=motion.dtype)
-    px = xs.view(1, 1, w) + motion[:, 0]  # previous x in pixels, (N, H, W)
-    py = ys.view(1, h, 1) + motion[:, 1]
-    # align_corners=False: pixel centre x maps to (2 x + 1) / W - 1.
-    gx = (2.0 * px + 1.0) / w - 1.0
-    gy = (2.0 * py + 1.0) / h - 1.0
-    return torch.stack((gx, gy), dim=-1)
-
-
 def in_bounds(motion: torch.Tensor) -> torch.Tensor:
     """(N, 1, H, W) bool: the previous position lies inside the previous frame's pixels."""
     h, w = motion.shape[-2], motion.shape[-1]
@@ -57,17 +46,6 @@ def in_bounds(motion: torch.Tensor) -> torch.Tensor:
     py = ys + motion[:, 1]
     inside = (px >= -0.5) & (px <= w - 0.5) & (py >= -0.5) & (py <= h - 0.5)
     return inside.unsqueeze(1)
-
-
-def reproject(previous: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
-    """Bilinearly sample `previous` (N, C, H, W) at current + motion (edge-clamped).
-
-    Out-of-screen positions read the border; combine with `in_bounds` to reject them.
-    """
-    grid = pixel_grid(motion)
-    return F.grid_sample(
-        previous, grid, mode="bilinear", padding_mode="border", align_corners=False
-    )
 
 
 def history_validity(

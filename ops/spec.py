@@ -20,6 +20,7 @@ from __future__ import annotations
 import re
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 import numpy as np
 
@@ -30,6 +31,7 @@ Shape = tuple  # of int (or SymInt)
 Attrs = Mapping[str, int]
 ShapeRule = Callable[[Sequence[Shape], Attrs], list[Shape]]
 Check = Callable[[Sequence[Shape], Attrs], None]
+T = TypeVar("T")
 ExampleInputs = Callable[[tuple[int, int, int, int], Attrs, np.random.Generator], list[np.ndarray]]
 
 
@@ -123,6 +125,30 @@ class OpSpec:
                     f"{self.name}: {arg.name} must be {arg.rank}-D, got shape {tuple(shape)}"
                 )
         self.check(shapes, attrs)
+
+
+def form_decorator(
+    table: dict[str, T], kind: str, build: Callable[[OpSpec, Callable], T]
+) -> Callable[[OpSpec | str], Callable[[Callable], T]]:
+    """A decorator factory `deco(spec_or_name)(fn)` that builds one form of an op from its spec
+    and `fn` with `build(spec, fn)` and records it in `table` under the op's name (one `kind`
+    of form per op). `torch_op`, `function_body` and `fast_kernel` are made with it."""
+
+    def decorator(spec: OpSpec | str) -> Callable[[Callable], T]:
+        if isinstance(spec, str):
+            from . import get_spec  # the registry of specs, filled when the package loads
+
+            spec = get_spec(spec)
+
+        def wrap(fn: Callable) -> T:
+            if spec.name in table:
+                raise ValueError(f"{spec.name} has two {kind}s")
+            table[spec.name] = form = build(spec, fn)
+            return form
+
+        return wrap
+
+    return decorator
 
 
 def same_nhw(op: str, shapes: Sequence[Shape], names: Sequence[str]) -> None:

@@ -1,4 +1,5 @@
-"""Files shipped inside the package: demo checkpoints, ONNX models and sample sequences."""
+"""Files shipped inside the package: demo checkpoints, ONNX models, sample sequences and
+layout presets."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from pathlib import Path
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 SEQUENCES_DIR = ASSETS_DIR / "sequences"
 MODELS_DIR = ASSETS_DIR / "models"
+LAYOUTS_DIR = ASSETS_DIR / "layouts"  # layout presets (TOML), runtime/layouts.py
 
 
 def sample_sequences() -> list[Path]:

@@ -7,7 +7,7 @@ or ``demo:<family>``) loads `rtdenoise.runtime.Denoiser`, imported lazily.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -17,10 +17,20 @@ from .errors import InputError
 
 @runtime_checkable
 class Backend(Protocol):
-    """One stateful denoiser: frames in order, `reset()` at a cut."""
+    """One stateful denoiser: frames in order, `reset()` at a cut.
 
-    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
-        """Denoise one frame: canonical (C, H, W) buffers -> (3, H, W) linear RGB."""
+    A backend may also list `required_buffers` (names): `run_sequence` then reads only
+    those (and `color`); without it, every buffer the layout finds.
+    """
+
+    def process(
+        self, buffers: Mapping[str, np.ndarray], *, assume_finite: bool = False
+    ) -> np.ndarray:
+        """Denoise one frame: canonical (C, H, W) buffers -> (3, H, W) linear RGB.
+
+        assume_finite: the caller has already replaced NaN/Inf in `buffers` (a `Frame` from
+        `read_frame` / `SequencePlan.read`), so the backend may skip its own scan.
+        """
         ...
 
     def reset(self) -> None:
@@ -34,7 +44,10 @@ class PassThrough:
     name = "none"
     required_buffers: tuple[str, ...] = ("color",)
 
-    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
+    def process(
+        self, buffers: Mapping[str, np.ndarray], *, assume_finite: bool = False
+    ) -> np.ndarray:
+        """A copy of `color`, NaN/Inf included (there is no model to protect)."""
         if "color" not in buffers:
             raise InputError("pass-through needs the 'color' buffer")
         return np.array(buffers["color"], dtype=np.float32, copy=True)
@@ -48,11 +61,16 @@ def load_backend(
     *,
     portable: bool = False,
     threads: int | None = None,
+    providers: Sequence[str] | None = None,
+    learn: bool = True,
+    learn_every: int = 1,
     options: Mapping[str, float] | None = None,
 ) -> Backend:
     """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
 
     portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
+    providers: ONNX Runtime execution providers in order of preference (None or empty: CPU).
+    learn, learn_every: online learning of a model that learns while it runs (Denoiser).
     options: values of the model's run-time options (e.g. {"kernel_size": 7}).
     """
     if model.strip().lower() == "none":
@@ -63,4 +81,12 @@ def load_backend(
         from .denoiser import Denoiser
     except ImportError as exc:
         raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
-    return Denoiser(model, fast_kernels=not portable, threads=threads, overrides=options)
+    return Denoiser(
+        model,
+        fast_kernels=not portable,
+        threads=threads,
+        providers=list(providers or []) or None,
+        learn=learn,
+        learn_every=learn_every,
+        overrides=options,
+    )

@@ -56,6 +56,9 @@ BUFFER_CHANNELS: dict[str, int] = {
     "depth": 1,  # linear view depth
     "motion": 2,  # pixels, previous position = current + motion, x right, y down
 }
+# What the buffers mean to an augmentation (training crops, flips, brightness).
+RADIANCE_BUFFERS = ("color", "color_b")  # scale with the exposure
+SCREEN_XY_BUFFERS = ("motion", "normal")  # components 0, 1 are screen x, y: flip with the image
 # Per-sample data, (S, C, H, W) with S and C model-defined (graph input [1, S, C, H, W]).
 SAMPLES = "samples"
 BUFFER_RANK: dict[str, int] = {name: 4 for name in BUFFER_CHANNELS} | {SAMPLES: 5}
@@ -78,11 +81,14 @@ class TensorInfo:
 
 @dataclass(frozen=True)
 class StateSpec:
-    """One temporal tensor: `channels` x (H / scale) x (W / scale)."""
+    """One temporal tensor: `channels` x (H / scale) x (W / scale), or `channels` x h x w for a
+    state of fixed `size` (h, w) that does not follow the frame (e.g. the weights and optimiser
+    moments of a model that learns while it runs)."""
 
     name: str
     channels: int
     scale: int = 1
+    size: tuple[int, int] | None = None
 
     @property
     def input_name(self) -> str:
@@ -92,9 +98,22 @@ class StateSpec:
     def output_name(self) -> str:
         return STATE_OUT + self.name
 
+    def spatial(self, height: int, width: int) -> tuple[int, int]:
+        """(H/scale, W/scale) for padded H, W; `size` for a fixed-size state."""
+        if self.size is not None:
+            return (int(self.size[0]), int(self.size[1]))
+        return (height // self.scale, width // self.scale)
+
     def shape(self, height: int, width: int) -> tuple[int, int, int, int]:
-        """[1, C, H/scale, W/scale] for padded H, W."""
-        return (1, self.channels, height // self.scale, width // self.scale)
+        """[1, C, H/scale, W/scale] for padded H, W ([1, C, h, w] for a fixed `size`)."""
+        return (1, self.channels, *self.spatial(height, width))
+
+    def to_json(self) -> dict[str, Any]:
+        """The metadata entry (`size` only when fixed)."""
+        entry: dict[str, Any] = {"name": self.name, "channels": self.channels, "scale": self.scale}
+        if self.size is not None:
+            entry["size"] = [int(self.size[0]), int(self.size[1])]
+        return entry
 
 
 @dataclass(frozen=True)
@@ -154,6 +173,7 @@ class Declaration:
     state: tuple[StateSpec, ...]
     pad_multiple: int
     note: str = ""
+    online: Mapping[str, Any] | None = None  # `rtdenoise.online`: how the model learns
     options: tuple[RuntimeOption, ...] = ()
 
     def input_names(self) -> list[str]:
@@ -171,11 +191,17 @@ class Declaration:
             KEY_FAMILY: self.family,
             KEY_CONFIG: json.dumps(dict(self.config), sort_keys=True),
             KEY_INPUTS: json.dumps({"buffers": list(self.buffers), "note": self.note}),
-            KEY_STATE: json.dumps(
-                [{"name": s.name, "channels": s.channels, "scale": s.scale} for s in self.state]
-            ),
+            KEY_STATE: json.dumps([s.to_json() for s in self.state]),
             KEY_PAD: str(self.pad_multiple),
-        } | ({KEY_OPTIONS: json.dumps([o.to_json() for o in self.options])} if self.options else {})
+        } | self._optional_metadata()
+
+    def _optional_metadata(self) -> dict[str, str]:
+        extra = {}
+        if self.online:
+            extra[KEY_ONLINE] = json.dumps(dict(self.online))
+        if self.options:
+            extra[KEY_OPTIONS] = json.dumps([o.to_json() for o in self.options])
+        return extra
 
 
 @dataclass(frozen=True)
@@ -207,7 +233,7 @@ class Contract:
     pad_multiple: int
     has_reset: bool
     output_shape: tuple[Dim, ...]
-    online: str | None = None
+    online: dict[str, Any] | None = None  # parsed `rtdenoise.online` (docs/contract.md)
     metadata: dict[str, str] = field(default_factory=dict)
     options: tuple[RuntimeOption, ...] = ()
 
@@ -225,6 +251,7 @@ class Contract:
             self.state,
             self.pad_multiple,
             self.note,
+            self.online,
             self.options,
         )
 
@@ -346,7 +373,7 @@ def parse_contract(
         pad_multiple=pad,
         has_reset=has_reset,
         output_shape=tuple(graph_out[OUTPUT].shape),
-        online=metadata.get(KEY_ONLINE),
+        online=_parse_online(load(KEY_ONLINE), state, fail) if KEY_ONLINE in metadata else None,
         metadata=dict(metadata),
         options=options,
     )
@@ -364,7 +391,12 @@ def _parse_state(raw: Any, pad: int, fail) -> tuple[StateSpec, ...]:
             raise fail(f"state {item['name']!r}: channels and scale must be integers >= 1")
         if pad % scale:
             raise fail(f"{KEY_PAD} {pad} is not a multiple of state {item['name']!r} scale {scale}")
-        specs.append(StateSpec(item["name"], channels, scale))
+        size = item.get("size")
+        if size is not None:
+            if not isinstance(size, list) or len(size) != 2 or not all(map(_pos_int, size)):
+                raise fail(f"state {item['name']!r}: size must be [h, w], integers >= 1")
+            size = (size[0], size[1])
+        specs.append(StateSpec(item["name"], channels, scale, size))
     if len({s.name for s in specs}) != len(specs):
         raise fail(f"{KEY_STATE} lists a state name twice")
     return tuple(specs)
@@ -393,6 +425,19 @@ def _parse_options(raw: Any, fail) -> tuple[RuntimeOption, ...]:
     if len({o.name for o in options}) != len(options):
         raise fail(f"{KEY_OPTIONS} lists an option twice")
     return tuple(options)
+
+
+def _parse_online(raw: Any, state: tuple[StateSpec, ...], fail) -> dict[str, Any]:
+    """`rtdenoise.online`: a JSON object; its `freeze` (the state a host sets to 1 to skip a
+    frame's update) must name a listed single-value state."""
+    if not isinstance(raw, dict):
+        raise fail(f"{KEY_ONLINE} must be a JSON object, got {type(raw).__name__}")
+    freeze = raw.get("freeze")
+    if freeze is not None:
+        spec = next((s for s in state if s.name == freeze), None)
+        if spec is None or spec.channels != 1 or spec.size != (1, 1):
+            raise fail(f"{KEY_ONLINE} freeze {freeze!r} is not a listed 1-value state")
+    return raw
 
 
 def _buffer_spec(name: str, shape: tuple[Dim, ...], fail) -> BufferSpec:

@@ -10,6 +10,14 @@ State lives in two ping-pong buffers per tensor bound through ONNX Runtime's IO
 binding: frame t reads buffer A and writes buffer B, frame t+1 the reverse. With a
 GPU execution provider the buffers are device memory, so state never crosses to the
 host; on CPU they are numpy arrays the session reads and writes in place.
+
+Buffers come planar, (C, H, W) (or batched, (1, C, H, W)), or interleaved as a renderer holds
+them, (H, W, C) with an optional alpha channel that is ignored ((H, W) for one channel), in
+float32 or float16; the output follows the layout of `color`, or fills the caller's `out`.
+
+A caller whose buffers are already free of NaN/Inf (a `Frame` from `read_frame`, which
+replaced and counted them) says so with `process(..., assume_finite=True)`, which skips the
+scan; the default scans every frame.
 """
 
 from __future__ import annotations
@@ -57,6 +65,7 @@ _DEVICE_OF_PROVIDER = {
     "DmlExecutionProvider": "dml",
 }
 _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
+HALF_MAX = 65504.0  # the largest float16: an `out` in half float is clamped to it
 
 
 def resolve_model(spec: str | os.PathLike) -> Path:
@@ -109,7 +118,9 @@ def _register_fast_kernels(options: ort.SessionOptions) -> bool:
     except ModuleNotFoundError as exc:
         if exc.name and exc.name.split(".")[-1] in ("fastops", "onnxruntime_extensions", "numba"):
             warnings.warn(
-                f"fast kernels unavailable ({exc}); custom ops run on the portable path",
+                f"fast kernels unavailable ({exc}): the custom ops run their portable ONNX "
+                "bodies, slower; numba and onnxruntime-extensions have wheels for CPython "
+                "3.10-3.13 on Linux x86_64/aarch64, macOS arm64 and Windows x64",
                 RuntimeWarning,
                 stacklevel=3,
             )
@@ -139,6 +150,42 @@ def _pad_edge(a: np.ndarray, hp: int, wp: int) -> np.ndarray:
     out[..., :h, w:] = a[..., :, w - 1 : w]
     out[..., h:, :] = out[..., h - 1 : h, :]
     return out
+
+
+def _is_interleaved(a: np.ndarray, channels: int | None, channels_last: bool | None) -> bool:
+    """Whether `a` is (H, W, C), (H, W, C + 1) or, for C = 1, (H, W); planar wins a tie."""
+    if channels is None or channels_last is False:
+        return False
+    fits = (a.ndim == 3 and a.shape[-1] in (channels, channels + 1)) or (
+        a.ndim == 2 and channels == 1
+    )
+    if channels_last:
+        return fits
+    planar = a.ndim in (3, 4) and a.shape[-3] == channels
+    return fits and not planar
+
+
+def _output_view(out: np.ndarray, size: tuple[int, int], channels_last: bool | None) -> np.ndarray:
+    """The (3, H, W) view of a caller's output array that `_store` fills; InputError if unfit."""
+    h, w = size
+    if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float16):
+        kind = out.dtype if isinstance(out, np.ndarray) else type(out).__name__
+        raise InputError(f"out must be a float32 or float16 numpy array, got {kind}")
+    if out.shape[:2] == (h, w) and _is_interleaved(out, 3, channels_last):
+        return out[..., :3].transpose(2, 0, 1)
+    if out.shape == (3, h, w) and channels_last is not True:
+        return out
+    raise InputError(
+        f"out has shape {out.shape}; expected (3, {h}, {w}), ({h}, {w}, 3) or ({h}, {w}, 4)"
+    )
+
+
+def _store(target: np.ndarray, planar: np.ndarray) -> None:
+    """Write a (3, H, W) float32 frame into the caller's view, clamping to the half range."""
+    if target.dtype == np.float16:
+        np.clip(planar, -HALF_MAX, HALF_MAX, out=target, casting="same_kind")
+    else:
+        np.copyto(target, planar)
 
 
 class _Slot:
@@ -181,6 +228,9 @@ class Denoiser:
     providers: execution providers, e.g. ["CUDAExecutionProvider"] or ["cuda"] (default CPU).
     io_binding: keep the state in bound OrtValues between frames (default); False uses plain
         `session.run` with numpy state (the reference path, same results).
+    learn, learn_every: for a model that learns while it runs (metadata `rtdenoise.online`,
+        docs/contract.md): take its update step on frames 0, N, 2N, ... of each history
+        (N = learn_every), none with learn=False (weights frozen). Ignored by other models.
     overrides: values of the model's run-time options (`contract.options`, e.g.
         {"kernel_size": 7}), fed as its overridable initializers `option.<name>` every frame.
     """
@@ -193,6 +243,8 @@ class Denoiser:
         threads: int | None = None,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
+        learn: bool = True,
+        learn_every: int = 1,
         overrides: Mapping[str, float] | None = None,
     ) -> None:
         if isinstance(model, (bytes, bytearray)):
@@ -243,6 +295,11 @@ class Denoiser:
         self._state: dict[str, np.ndarray] = {}  # session.run state
         self._frame_index = 0
         self._pending_reset = True
+        if learn_every < 1:
+            raise InputError(f"learn_every must be >= 1, got {learn_every}")
+        self.learn = learn
+        self.learn_every = learn_every
+        self._freeze = (self._contract.online or {}).get("freeze")
 
     # -- properties -------------------------------------------------------------------------
 
@@ -291,6 +348,26 @@ class Denoiser:
         return self._session.get_providers()
 
     @property
+    def online(self) -> dict[str, Any] | None:
+        """The model's `rtdenoise.online` description (None: it does not learn while it runs)."""
+        return self._contract.online
+
+    def state_value(self, name: str) -> np.ndarray:
+        """A copy of state `name` as the last frame left it (e.g. an online model's weights or
+        loss); zeros before the first frame of a history."""
+        if name not in {s.name for s in self.state_specs}:
+            known = [s.name for s in self.state_specs]
+            raise InputError(f"model {self.family!r} has no state {name!r} (state: {known})")
+        if self._binding is not None:
+            if name not in self._slots:
+                raise InputError("no frame processed yet")
+            slot = self._slots[name][0]
+            return np.array(slot.host if slot.host is not None else slot.value.numpy())
+        if name not in self._state:
+            raise InputError("no frame processed yet")
+        return np.array(self._state[name])
+
+    @property
     def session(self) -> ort.InferenceSession:
         return self._session
 
@@ -307,24 +384,46 @@ class Denoiser:
         """Forget the history: the next frame starts from zero state with reset = 1."""
         self._pending_reset = True
 
-    def process(self, buffers: Mapping[str, np.ndarray], *, reset: bool = False) -> np.ndarray:
-        """Denoise one frame. buffers: name -> (C, H, W) or (1, C, H, W) float32.
+    def process(
+        self,
+        buffers: Mapping[str, np.ndarray],
+        *,
+        reset: bool = False,
+        assume_finite: bool = False,
+        out: np.ndarray | None = None,
+        channels_last: bool | None = None,
+    ) -> np.ndarray:
+        """Denoise one frame. buffers: name -> array, planar (C, H, W) or (1, C, H, W), or
+        interleaved (H, W, C), (H, W, C + 1) with alpha ignored, or (H, W) when C = 1; float32
+        or float16 (other real types are converted).
 
-        Extra buffers are ignored. `reset=True` marks a camera cut. Returns (3, H, W) float32.
+        Extra buffers are ignored. `reset=True` marks a camera cut. Returns the frame, linear
+        HDR float32, (3, H, W), or (H, W, 3) when `color` is interleaved; or `out`, filled.
+        NaN/Inf input values are replaced by 0 (in a copy) and counted in `last_nonfinite`.
+        assume_finite: the caller guarantees the buffers hold no NaN/Inf (e.g. they come from
+            `read_frame`, which already replaced and counted them): skips that scan, one pass
+            over every buffer. Non-finite values given with it reach the model.
+        out: the caller's output array, (3, H, W) or (H, W, 3) / (H, W, 4) (alpha left as it
+            is), float32 or float16 (clamped to the half range); written in place, returned.
+        channels_last: True: every array is interleaved; False: planar; None (default): each
+            array's shape tells (one that fits both, an interleaved frame C pixels tall, is
+            read as planar).
         """
         start = time.perf_counter()
-        feeds, (h, w), (hp, wp) = self._prepare(buffers)
+        feeds, (h, w), (hp, wp) = self._prepare(buffers, assume_finite, channels_last)
+        target = None if out is None else _output_view(out, (h, w), channels_last)
         if reset or (h, w) != self._size:
             self._pending_reset = True
         if self._pending_reset:
             self._start_history((h, w), (hp, wp))
         first = self._frame_index == 0
+        self._write_controls()
         t0 = time.perf_counter()
         try:
             if self._binding is not None:
-                out = self._run_bound(feeds, first, hp, wp)
+                result = self._run_bound(feeds, first, hp, wp)
             else:
-                out = self._run_plain(feeds, first, hp, wp)
+                result = self._run_plain(feeds, first, hp, wp)
         except InputError:  # ContractError: the model broke the contract at run time
             raise
         except Exception as exc:
@@ -335,14 +434,23 @@ class Denoiser:
         self.last_run_ms = (time.perf_counter() - t0) * 1e3
         self._frame_index += 1
         self.frames_processed += 1
-        result = out[0] if (hp, wp) == (h, w) else np.ascontiguousarray(out[0, :, :h, :w])
+        if target is not None:
+            _store(target, result[0, :, :h, :w])
+        elif "color" in buffers and _is_interleaved(np.asarray(buffers["color"]), 3, channels_last):
+            result = np.ascontiguousarray(result[0, :, :h, :w].transpose(1, 2, 0))
+        else:
+            result = result[0] if (hp, wp) == (h, w) else np.ascontiguousarray(result[0, :, :h, :w])
         self.last_total_ms = (time.perf_counter() - start) * 1e3
-        return result
+        return out if out is not None else result
 
     def _prepare(
-        self, buffers: Mapping[str, np.ndarray]
+        self,
+        buffers: Mapping[str, np.ndarray],
+        assume_finite: bool = False,
+        channels_last: bool | None = None,
     ) -> tuple[dict[str, np.ndarray], tuple[int, int], tuple[int, int]]:
-        """Validate, sanitize and pad the buffers the model reads."""
+        """Validate, sanitize (unless `assume_finite`) and pad the buffers the model reads;
+        interleaved and half-float buffers become planar float32 in the same one copy."""
         if not isinstance(buffers, Mapping):
             raise InputError(f"process() takes a dict name -> array, got {type(buffers).__name__}")
         specs = self._contract.buffers
@@ -356,7 +464,7 @@ class Denoiser:
         arrays: dict[str, np.ndarray] = {}
         size: tuple[int, int] | None = None
         for spec in specs:
-            a = self._check_shape(spec, np.asarray(buffers[spec.name]))
+            a = self._check_shape(spec, np.asarray(buffers[spec.name]), channels_last)
             if size is None:
                 size, first = a.shape[-2:], spec.name
             elif a.shape[-2:] != size:
@@ -379,7 +487,7 @@ class Denoiser:
         for name, a in arrays.items():
             original = np.asarray(buffers[name])
             a32 = np.ascontiguousarray(a, dtype=np.float32)
-            bad = _count_nonfinite(a32)
+            bad = 0 if assume_finite else _count_nonfinite(a32)
             feed = _pad_edge(a32, hp, wp)
             if bad:
                 if np.may_share_memory(feed, original):
@@ -392,10 +500,15 @@ class Denoiser:
         self.total_nonfinite += self.last_nonfinite
         return feeds, (h, w), (hp, wp)
 
-    def _check_shape(self, spec: BufferSpec, a: np.ndarray) -> np.ndarray:
-        """(C, H, W) or (1, C, H, W) [rank 5: (S, C, H, W) or (1, S, C, H, W)] -> batched view."""
+    def _check_shape(
+        self, spec: BufferSpec, a: np.ndarray, channels_last: bool | None = None
+    ) -> np.ndarray:
+        """(C, H, W) or (1, C, H, W) [rank 5: (S, C, H, W) or (1, S, C, H, W)], or interleaved
+        (H, W, C[+1]) / (H, W) -> batched planar view."""
         given = a.shape
         good = a.dtype.kind in "fiu"
+        if good and spec.rank == 4 and _is_interleaved(a, spec.channels, channels_last):
+            a = (a[..., None] if a.ndim == 2 else a[..., : spec.channels]).transpose(2, 0, 1)
         if good and a.ndim == spec.rank - 1:
             a = a[None]
         good = good and a.ndim == spec.rank and a.shape[0] == 1
@@ -403,9 +516,10 @@ class Denoiser:
         good = good and min(a.shape[-2:], default=0) > 0
         if not good:
             batched = spec.expected.replace("(", "(1, ", 1)
+            interleaved = "(H, W)" if spec.channels == 1 else f"(H, W, {spec.channels}[+alpha])"
             raise InputError(
                 f"buffer {spec.name!r} has shape {given} and dtype {a.dtype}; expected "
-                f"{spec.expected} or {batched} float32"
+                f"{spec.expected}, {batched} or {interleaved}, float32 or float16"
             )
         return a
 
@@ -429,6 +543,21 @@ class Denoiser:
         self._size = size
         self._frame_index = 0
         self._pending_reset = False
+
+    def _write_controls(self) -> None:
+        """An online model's freeze control for this frame: 0 = take the update step."""
+        if self._freeze is None:
+            return
+        step = self.learn and self._frame_index % self.learn_every == 0
+        value = 0.0 if step else 1.0
+        if self._binding is None:
+            self._state[self._freeze].fill(value)
+            return
+        slot = self._slots[self._freeze][0]
+        if slot.host is not None:
+            slot.host.fill(value)
+        else:
+            slot.value.update_inplace(np.full(slot.shape, value, np.float32))
 
     def _run_plain(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
         inputs = dict(feeds)

@@ -1,14 +1,19 @@
 """Read and write EXR files with OpenEXR's own Python bindings.
 
-Channels are plain 2-D float32 arrays keyed by their full EXR channel name
+Channels are plain 2-D arrays keyed by their full EXR channel name
 ("R", "albedo.G", "ViewLayer.Denoising Albedo.R"). Multi-part files (Blender 5
 multilayer) are flattened: every part's channels go into one dict.
 Writes are atomic: a temp file in the target folder, then a rename.
+
+The bindings (OpenEXR 3.x) always decode every channel of a file: they have no way to read
+a subset. `read_exr(path, channels=...)` therefore saves the rest of the work only: the
+channels not asked for are never converted or copied.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -18,11 +23,8 @@ from .atomic import atomic_path
 from .errors import InputError
 
 
-def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
-    """All channels of an EXR file (every part), as contiguous 2-D float32 arrays."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+def _decode(path: Path) -> dict[str, np.ndarray]:
+    """Every channel the bindings decode, as 2-D arrays in the file's own pixel type."""
     try:
         with OpenEXR.File(str(path), separate_channels=True) as exr:
             channels: dict[str, np.ndarray] = {}
@@ -31,22 +33,62 @@ def read_exr(path: str | os.PathLike) -> dict[str, np.ndarray]:
                     pixels = np.asarray(channel.pixels)
                     if pixels.ndim != 2:
                         raise InputError(f"{path}: channel {name!r} has shape {pixels.shape}")
-                    channels[name] = np.ascontiguousarray(pixels, dtype=np.float32)
+                    channels[name] = pixels
     except InputError:
         raise
     except Exception as exc:  # OpenEXR raises RuntimeError/OSError for truncated/corrupt files
         raise InputError(f"{path}: cannot read EXR ({exc})") from exc
-    # OpenEXR 3.5 drops the parts whose pixels it cannot read (truncated file) with only a
-    # printed warning: compare with the channels the headers list.
-    lost = sorted(set(read_exr_header(path)) - set(channels))
-    if lost:
-        raise InputError(
-            f"{path}: cannot read EXR (truncated or corrupt: no pixel data for {len(lost)} "
-            f"channels, e.g. {lost[0]!r})"
-        )
-    if not channels:
-        raise InputError(f"{path}: EXR file has no channels")
     return channels
+
+
+def _lost_error(path: Path, lost: list[str]) -> InputError:
+    return InputError(
+        f"{path}: cannot read EXR (truncated or corrupt: no pixel data for {len(lost)} "
+        f"channels, e.g. {lost[0]!r})"
+    )
+
+
+def read_exr(
+    path: str | os.PathLike,
+    channels: Collection[str] | None = None,
+    *,
+    dtype: type | None = np.float32,
+) -> dict[str, np.ndarray]:
+    """Channels of an EXR file (every part) as contiguous 2-D arrays.
+
+    channels: only these (InputError naming the file and the first absent channel); None: all.
+    dtype: convert to this type (default float32); None keeps the file's type (float16 for
+        half channels) without a copy, for callers that convert while stacking.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    decoded = _decode(path)
+    if channels is None:
+        # OpenEXR 3.5 drops the parts whose pixels it cannot read (truncated file) with only
+        # a printed warning: compare with the channels the headers list.
+        lost = sorted(set(read_exr_header(path)) - set(decoded))
+        if lost:
+            raise _lost_error(path, lost)
+        if not decoded:
+            raise InputError(f"{path}: EXR file has no channels")
+        names: Collection[str] = decoded
+    else:
+        absent = [n for n in channels if n not in decoded]
+        if absent:  # the header tells a dropped (truncated) part from a channel never there
+            listed = read_exr_header(path)
+            lost = [n for n in absent if n in listed]
+            if lost:
+                raise _lost_error(path, lost)
+            shown = sorted(listed)
+            more = f", ... (+{len(shown) - 40} more)" if len(shown) > 40 else ""
+            raise InputError(
+                f"{path}: no channel {absent[0]!r}; channels present: {', '.join(shown[:40])}{more}"
+            )
+        names = channels
+    if dtype is None:
+        return {n: np.ascontiguousarray(decoded[n]) for n in names}
+    return {n: np.ascontiguousarray(decoded[n], dtype=dtype) for n in names}
 
 
 def read_exr_header(path: str | os.PathLike) -> dict[str, tuple[int, int]]:
@@ -76,7 +118,8 @@ def write_exr(
 ) -> Path:
     """Write 2-D channels to a single-part, ZIP-compressed EXR, atomically.
 
-    `half=True` stores float16 (the default for denoised output), else float32.
+    `half=True` stores float16 (the default for denoised output), else float32. Arrays
+    already of that type and contiguous are written as they are (no conversion, no copy).
     """
     path = Path(path)
     if not channels:
@@ -86,7 +129,7 @@ def write_exr(
     first = next(iter(shapes.values()))
     if len(first) != 2 or any(s != first for s in shapes.values()):
         raise ValueError(f"write_exr: channels must be 2-D and of one size, got {shapes}")
-    # OpenEXR writes non-contiguous arrays wrong without an error: always copy contiguous.
+    # OpenEXR writes non-contiguous arrays wrong without an error: always pass contiguous ones.
     data = {name: np.ascontiguousarray(a, dtype=dtype) for name, a in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic_path(path) as tmp, OpenEXR.File(header, data) as exr:

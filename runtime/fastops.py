@@ -9,7 +9,9 @@ Pitfalls handled here (research-notes "Custom ops"):
 - ops must be declared before `register_custom_ops_library`: they are declared at import;
 - the library's default result hook converts every output with `.flatten().tolist()`
   (~180 ms per 720p call); `_array_hook` hands the ndarray back instead. It replaces a
-  library-internal function, so it is installed only for the pinned version 0.15.2;
+  library-internal function, so it is installed only for the versions checked to speak its
+  protocol (`HOOK_VERSIONS`: their `_ocos.py` are identical, and the op, demo-model and
+  torch-free runtime tests passed on each);
 - every declared attribute must be present on the node (the exporter writes them all);
 - inputs and outputs are copied on every call; at 720p KernelApply's 49-channel kernel is
   180 MB, and glibc serves such blocks with fresh mmaps that page-fault on every call.
@@ -52,8 +54,8 @@ PyCustomOpDef = onnxruntime_extensions.PyCustomOpDef
 get_library_path = onnxruntime_extensions.get_library_path
 onnx_op = onnxruntime_extensions.onnx_op
 
-# The onnxruntime-extensions version whose hook protocol `_array_hook` follows.
-HOOK_VERSION = "0.15.2"
+# The onnxruntime-extensions versions whose hook protocol `_array_hook` follows.
+HOOK_VERSIONS = ("0.15.0", "0.15.2")
 
 FAST_OPS: tuple[str, ...] = tuple(KERNELS)
 
@@ -90,9 +92,10 @@ def install_array_hook() -> bool:
     global _hook_installed
     if _hook_installed:
         return True
-    if onnxruntime_extensions.__version__ != HOOK_VERSION:
+    if onnxruntime_extensions.__version__ not in HOOK_VERSIONS:
         warnings.warn(
-            f"onnxruntime-extensions {onnxruntime_extensions.__version__} != {HOOK_VERSION}: "
+            f"onnxruntime-extensions {onnxruntime_extensions.__version__} is none of "
+            f"{', '.join(HOOK_VERSIONS)}: "
             "keeping its default result hook (correct but ~100x slower per call)",
             RuntimeWarning,
             stacklevel=2,

@@ -2,7 +2,8 @@
 
 A *layout* names, for every canonical buffer (docs/contract.md), the EXR layers it
 may come from, tried in order, and a conversion to the canonical conventions
-applied after reading. Two layouts ship:
+applied after reading. Layouts are data: TOML files (docs/layouts.md). Two presets ship in
+`rtdenoise/assets/layouts/`:
 
 - ``canonical`` (docs/contract.md, "Buffers"): ``R,G,B`` (noisy colour), ``colorB.R/G/B``,
   ``albedo.R/G/B``, ``normal.X/Y/Z``, ``depth.Z``, ``motion.X/Y``; no conversion.
@@ -10,6 +11,9 @@ applied after reading. Two layouts ship:
   ``Combined``), ``Denoising Albedo`` (clamped to [0, 1]), ``Denoising Normal``
   (camera space, kept as is), ``Denoising Depth.Z``, ``Vector.X/Y`` converted to
   our motion convention: previous = current + (Vector.X, -Vector.Y).
+
+`get_layout` takes a preset name or the path of a user's ``.toml`` file (a copy of a preset,
+edited for a renderer).
 
 Channel matching (one rule for layouts and ``--channel`` overrides). A buffer
 with C channels read from layer ``L`` uses the channels ``L.<c>`` for the first
@@ -19,7 +23,8 @@ component set that is complete: C = 3: ``R,G,B`` then ``X,Y,Z``; C = 2: ``X,Y``,
 A name matches exactly or, failing that, with any one prefix
 (``ViewLayer.L.<c>``); two prefixes holding the same layer is an error (name the
 layer with its prefix to choose). A layer with only some of its channels is an
-error naming the missing ones.
+error naming the missing ones. A source may instead list exactly C full channel
+names, comma-separated (``mv.U,mv.V``): a layout file's ``channels`` key, or an override.
 
 Overrides (``--channel BUFFER=VALUE``): VALUE is a layer name as above, a
 comma-separated list of exactly C full channel names (``motion=mv.U,mv.V``), or
@@ -29,21 +34,60 @@ conversion still applies (the layout states the file's conventions).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+import os
+import sys
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from rtdenoise.shipped import LAYOUTS_DIR
+
 from .contract import BUFFER_CHANNELS
 from .errors import InputError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
 
 COMPONENT_SETS: dict[int, tuple[tuple[str, ...], ...]] = {
     3: (("R", "G", "B"), ("X", "Y", "Z")),
     2: (("X", "Y"), ("R", "G"), ("U", "V")),
     1: (("Z",), ("R",), ("Y",), ("V",)),
 }
+MOTION_UNITS = ("pixels", "uv")  # uv: a fraction of the image, x times width, y times height
+BUFFER_KEYS = ("layers", "channels", "scale", "offset", "clamp", "units")
+LAYOUT_KEYS = ("description", "required", "buffers")
 
 Buffers = dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Transform:
+    """How one buffer's file values become canonical: ``clamp((v * scale + offset) * size)``,
+    per channel; `size` = (width, height) for motion in ``uv`` units, else 1."""
+
+    scale: tuple[float, ...] | None = None
+    offset: tuple[float, ...] | None = None
+    clamp: tuple[float, float] | None = None
+    units: str = "pixels"
+
+    def apply(self, a: np.ndarray) -> np.ndarray:
+        """Convert a (C, H, W) float32 buffer in place; returns it."""
+        shape = (-1,) + (1,) * (a.ndim - 1)
+        if self.scale is not None:
+            a *= np.asarray(self.scale, np.float32).reshape(shape)
+        if self.offset is not None:
+            a += np.asarray(self.offset, np.float32).reshape(shape)
+        if self.units == "uv":
+            h, w = a.shape[-2:]
+            a *= np.asarray((w, h), np.float32).reshape(shape)
+        if self.clamp is not None:
+            np.clip(a, self.clamp[0], self.clamp[1], out=a)
+        return a
 
 
 @dataclass(frozen=True)
@@ -52,62 +96,135 @@ class Layout:
 
     name: str
     description: str
-    layers: Mapping[str, tuple[str, ...]]  # buffer -> candidate layer names, tried in order
-    convert: Callable[[Buffers], Buffers] = field(default=lambda b: b)
+    layers: Mapping[str, tuple[str, ...]]  # buffer -> candidate sources, tried in order
+    transforms: Mapping[str, Transform] = field(default_factory=dict)
     required: tuple[str, ...] = ("color",)
+    path: Path | None = None  # the TOML file it was read from
+
+    def convert(self, buffers: Buffers) -> Buffers:
+        """File conventions -> canonical ones, in place on the buffers' own arrays."""
+        for name, transform in self.transforms.items():
+            if name in buffers:
+                buffers[name] = transform.apply(buffers[name])
+        return buffers
 
 
-def _convert_blender(buffers: Buffers) -> Buffers:
-    """Cycles -> canonical conventions (research-notes, "Conventions in the wild")."""
-    out = dict(buffers)
-    if "motion" in out:
-        # Blender's Vector.Y points up; rows are top-down: previous = current + (X, -Y).
-        motion = out["motion"].copy()
-        motion[1] *= -1.0
-        out["motion"] = motion
-    if "albedo" in out:
-        # Denoising Albedo exceeds 1 where glossy surfaces reflect lights (tint x radiance).
-        out["albedo"] = np.clip(out["albedo"], 0.0, 1.0)
-    return out
+def _floats(value: Any, n: int, where: str) -> tuple[float, ...]:
+    """A number (for every channel) or a list of `n` numbers."""
+    items = value if isinstance(value, list) else [value] * n
+    if len(items) != n or not all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in items
+    ):
+        raise InputError(f"{where}: expected a number or a list of {n} numbers, got {value!r}")
+    return tuple(float(v) for v in items)
 
 
-LAYOUTS: dict[str, Layout] = {
-    "canonical": Layout(
-        name="canonical",
-        description="R,G,B colour; colorB, albedo, normal (X,Y,Z), depth.Z, motion.X/Y "
-        "(pixels, previous = current + motion, y down)",
-        layers={
-            "color": ("",),
-            "color_b": ("colorB",),
-            "albedo": ("albedo",),
-            "normal": ("normal",),
-            "depth": ("depth",),
-            "motion": ("motion",),
-        },
-    ),
-    "blender": Layout(
-        name="blender",
-        description="Cycles multilayer, any view-layer prefix: Noisy Image (else Combined), "
-        "Denoising Albedo (clamped to [0,1]), Denoising Normal, Denoising Depth, "
-        "Vector (motion = (X, -Y))",
-        layers={
-            "color": ("Noisy Image", "Combined"),
-            "albedo": ("Denoising Albedo",),
-            "normal": ("Denoising Normal",),
-            "depth": ("Denoising Depth",),
-            "motion": ("Vector",),
-        },
-        convert=_convert_blender,
-    ),
-}
+def _strings(value: Any, where: str) -> list[str]:
+    items = [value] if isinstance(value, str) else value
+    if not isinstance(items, list) or not all(isinstance(v, str) for v in items):
+        raise InputError(f"{where}: expected a string or a list of strings, got {value!r}")
+    return items
 
 
-def get_layout(name: str) -> Layout:
-    """The layout called `name`; InputError listing the known ones otherwise."""
+def _unknown(keys: Iterable[str], allowed: Sequence[str], where: str) -> None:
+    extra = sorted(set(keys) - set(allowed))
+    if extra:
+        raise InputError(f"{where}: unknown key {extra[0]!r}; keys: {', '.join(allowed)}")
+
+
+def _buffer_entry(buf: str, entry: Any, where: str) -> tuple[tuple[str, ...], Transform | None]:
+    """(candidate sources, transform) of one `[buffers.<buf>]` table."""
+    if not isinstance(entry, dict):
+        raise InputError(f"{where}: expected a table ([buffers.{buf}])")
+    _unknown(entry, BUFFER_KEYS, where)
+    n = BUFFER_CHANNELS[buf]
+    sources: list[str] = []
+    if "channels" in entry:
+        names = _strings(entry["channels"], f"{where}.channels")
+        if len(names) != n or not all(names) or any("," in c for c in names):
+            raise InputError(f"{where}.channels: {buf} needs {n} channel names, got {names!r}")
+        sources.append(",".join(names))
+    sources += _strings(entry.get("layers", []), f"{where}.layers")
+    if not sources:
+        raise InputError(f"{where}: give `layers` (layer names) or `channels` (exact names)")
+    units = entry.get("units", "pixels")
+    if units not in MOTION_UNITS or (units != "pixels" and buf != "motion"):
+        raise InputError(
+            f"{where}.units: {units!r}; units apply to motion only: {', '.join(MOTION_UNITS)}"
+        )
+    clamp = None
+    if "clamp" in entry:
+        clamp = _floats(entry["clamp"], 2, f"{where}.clamp")
+        if not clamp[0] <= clamp[1]:
+            raise InputError(f"{where}.clamp: expected [low, high] with low <= high")
+    transform = Transform(
+        scale=_floats(entry["scale"], n, f"{where}.scale") if "scale" in entry else None,
+        offset=_floats(entry["offset"], n, f"{where}.offset") if "offset" in entry else None,
+        clamp=clamp,
+        units=units,
+    )
+    return tuple(sources), None if transform == Transform() else transform
+
+
+def parse_layout(data: Mapping[str, Any], name: str, source: str = "<layout>") -> Layout:
+    """A Layout from the parsed TOML of a layout file; InputError naming `source` and the key."""
+    _unknown(data, LAYOUT_KEYS, source)
+    buffers = data.get("buffers", {})
+    if not isinstance(buffers, dict) or "color" not in buffers:
+        raise InputError(f"{source}: needs at least [buffers.color] (where the noisy colour is)")
+    layers: dict[str, tuple[str, ...]] = {}
+    transforms: dict[str, Transform] = {}
+    for buf, entry in buffers.items():
+        if buf not in BUFFER_CHANNELS:
+            raise InputError(
+                f"{source}: unknown buffer [buffers.{buf}]; buffers: {', '.join(BUFFER_CHANNELS)}"
+            )
+        layers[buf], transform = _buffer_entry(buf, entry, f"{source}: buffers.{buf}")
+        if transform is not None:
+            transforms[buf] = transform
+    required = tuple(_strings(data.get("required", ["color"]), f"{source}: required"))
+    missing = [b for b in required if b not in layers]
+    if missing:
+        raise InputError(f"{source}: required buffer {missing[0]!r} has no [buffers.{missing[0]}]")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        raise InputError(f"{source}: description: expected a string")
+    return Layout(name, description, layers, transforms, required)
+
+
+def load_layout(path: str | os.PathLike) -> Layout:
+    """Read a layout file (TOML, docs/layouts.md); its name is the file's stem."""
+    path = Path(path).expanduser()
     try:
-        return LAYOUTS[name]
-    except KeyError:
-        raise InputError(f"unknown layout {name!r}; known layouts: {', '.join(LAYOUTS)}") from None
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such layout file") from None
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise InputError(f"{path}: not a readable TOML layout file: {exc}") from None
+    layout = parse_layout(data, path.stem, str(path))
+    return Layout(**{**layout.__dict__, "path": path})
+
+
+def preset_paths() -> dict[str, Path]:
+    """The shipped presets: name -> TOML file (`canonical` first)."""
+    paths = {p.stem: p for p in sorted(LAYOUTS_DIR.glob("*.toml"))}
+    return dict(sorted(paths.items(), key=lambda kv: kv[0] != "canonical"))
+
+
+LAYOUTS: dict[str, Layout] = {name: load_layout(p) for name, p in preset_paths().items()}
+
+
+def get_layout(name: str | os.PathLike) -> Layout:
+    """A preset by name (``canonical``, ``blender``) or a layout file (``.toml``)."""
+    text = os.fspath(name)
+    if text in LAYOUTS:
+        return LAYOUTS[text]
+    if text.lower().endswith(".toml") or os.sep in text or Path(text).is_file():
+        return load_layout(text)
+    raise InputError(
+        f"unknown layout {text!r}; known layouts: {', '.join(LAYOUTS)}, or a layout file "
+        "(.toml, docs/layouts.md)"
+    )
 
 
 def parse_overrides(items: Iterable[str] | None) -> dict[str, str]:
@@ -167,7 +284,12 @@ def _resolve_layer(
     by_suffix: dict[str, list[str]],
     source: str,
 ) -> tuple[list[str] | None, list[str]]:
-    """Channel names for `layer`, or (None, missing names of the best partial match)."""
+    """Channel names for `layer`, or (None, missing names of the best partial match).
+    A `layer` with commas lists the exact channel names."""
+    if "," in layer:
+        names = [n.strip() for n in layer.split(",")]
+        missing = [n for n in names if n not in present]
+        return (None, missing) if missing else (names, [])
     sets: list[tuple[str, ...]] = []
     if channels == 1 and layer:
         sets.append(("",))  # the layer names a channel itself
@@ -216,12 +338,17 @@ def resolve_channels(
     layout: Layout | str = "canonical",
     overrides: Mapping[str, str] | None = None,
     source: str = "<file>",
+    *,
+    buffers: Collection[str] | None = None,
+    required: Collection[str] = (),
 ) -> dict[str, list[str]]:
     """Map each canonical buffer found in a file to its EXR channel names (in order).
 
-    Buffers absent from the file are left out, except required ones (`color` and every
-    overridden buffer), which raise InputError naming `source`, the missing channels and
-    the channels present.
+    Buffers absent from the file are left out, except required ones (`color`, every
+    overridden buffer and those in `required`), which raise InputError naming `source`,
+    the missing channels and the channels present.
+    buffers: resolve only these buffers, the required ones and the overridden ones (None:
+        every canonical buffer), so that a layer nobody reads cannot fail the file.
     """
     layout = get_layout(layout) if isinstance(layout, str) else layout
     overrides = dict(overrides or {})
@@ -232,16 +359,8 @@ def resolve_channels(
         value = overrides.get(buf)
         if value is not None and value.lower() == "none":
             continue
-        required = buf in layout.required or value is not None
-        if value is not None and "," in value:
-            names = [v.strip() for v in value.split(",")]
-            missing = [n for n in names if n not in present]
-            if missing:
-                raise InputError(
-                    f"{source}: missing channel {', '.join(missing)} for buffer {buf!r}; "
-                    f"channels present: {_list_names(present)}"
-                )
-            result[buf] = names
+        required_here = buf in layout.required or value is not None or buf in required
+        if not required_here and buffers is not None and buf not in buffers:
             continue
         layers: Sequence[str] = (value,) if value is not None else layout.layers.get(buf, ())
         partial: list[str] = []
@@ -252,7 +371,7 @@ def resolve_channels(
                 break
             partial = partial or missing
         else:
-            if partial or (required and layers):
+            if partial or (required_here and layers):
                 if not partial:
                     comps = COMPONENT_SETS[nch][0]
                     partial = [".".join(p for p in (layers[0], c) if p) for c in comps]
@@ -261,22 +380,40 @@ def resolve_channels(
                     f"(layout {layout.name}{_suggest(layout, buf, present, by_suffix)}); "
                     f"channels present: {_list_names(present)}"
                 )
-            if required:
+            if required_here:
                 raise InputError(f"{source}: layout {layout.name} has no source for {buf!r}")
     return result
 
 
-def extract_buffers(
+def check_channels(
+    channel_names: Iterable[str],
+    mapping: Mapping[str, Sequence[str]],
+    layout: Layout,
+    source: str = "<file>",
+) -> None:
+    """InputError naming `source`, the buffer and its missing channels when a file lacks a
+    channel of `mapping` (a mapping resolved from another file of the same sequence)."""
+    present = set(channel_names)
+    for buf, names in mapping.items():
+        missing = [n for n in names if n not in present]
+        if missing:
+            raise InputError(
+                f"{source}: missing channel {', '.join(missing)} for buffer {buf!r} "
+                f"(layout {layout.name}, as the sequence's first frame has it); "
+                f"channels present: {_list_names(present)}"
+            )
+
+
+def stack_buffers(
     channels: Mapping[str, np.ndarray],
-    layout: Layout | str = "canonical",
-    overrides: Mapping[str, str] | None = None,
+    mapping: Mapping[str, Sequence[str]],
     source: str = "<file>",
 ) -> Buffers:
-    """Stack a file's channels into canonical (C, H, W) float32 buffers (no conversion).
+    """Stack the mapped channels into (C, H, W) float32 buffers (no conversion).
 
+    One copy per buffer, converting from the file's type (e.g. float16) on the way.
     Raises InputError when the selected channels differ in size.
     """
-    mapping = resolve_channels(channels.keys(), layout, overrides, source)
     buffers: Buffers = {}
     first: str | None = None
     for buf, names in mapping.items():
@@ -288,5 +425,24 @@ def extract_buffers(
                 raise InputError(
                     f"{source}: channel {name!r} is {w}x{h} but channel {first!r} is {w0}x{h0}"
                 )
-        buffers[buf] = np.stack([np.asarray(channels[n], dtype=np.float32) for n in names])
+        buffers[buf] = np.stack([channels[n] for n in names], dtype=np.float32)
     return buffers
+
+
+def extract_buffers(
+    channels: Mapping[str, np.ndarray],
+    layout: Layout | str = "canonical",
+    overrides: Mapping[str, str] | None = None,
+    source: str = "<file>",
+    *,
+    buffers: Collection[str] | None = None,
+) -> Buffers:
+    """Stack a file's channels into canonical (C, H, W) float32 buffers (no conversion).
+
+    buffers: only these (and `color`, always required); None: every buffer the file has.
+    Raises InputError when the selected channels differ in size.
+    """
+    mapping = resolve_channels(channels.keys(), layout, overrides, source, buffers=buffers)
+    if buffers is not None:
+        mapping = {b: names for b, names in mapping.items() if b in buffers or b == "color"}
+    return stack_buffers(channels, mapping, source)

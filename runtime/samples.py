@@ -15,13 +15,14 @@ for one sample (`samples_from_buffers`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
-from .contract import BUFFER_CHANNELS
+from .contract import BUFFER_CHANNELS, RADIANCE_BUFFERS, SCREEN_XY_BUFFERS
 from .errors import InputError
-from .layouts import LAYOUTS, Layout, extract_buffers
+from .layouts import LAYOUTS
 
 SAMPLE_FEATURES_KEY = "sample_features"
 DEFAULT_SAMPLE_FEATURES = ("color", "albedo", "normal", "depth")
@@ -80,15 +81,6 @@ def sample_count(channel_names: Sequence[str] | Mapping[str, object]) -> int:
     return s
 
 
-def _sample_layout(index: int, features: tuple[str, ...]) -> Layout:
-    return Layout(
-        name=f"{PREFIX}{index}",
-        description=f"sample {index}",
-        layers={f: (sample_layer(index, f),) for f in features},
-        required=features,
-    )
-
-
 def read_samples(
     channels: Mapping[str, np.ndarray], features: Sequence[str], source: str = "<file>"
 ) -> np.ndarray | None:
@@ -96,15 +88,8 @@ def read_samples(
 
     InputError (naming the file and channel) when a sample lacks one of the features.
     """
-    features = check_features(features)
-    s = sample_count(channels)
-    if s == 0:
-        return None
-    out = []
-    for i in range(s):
-        bufs = extract_buffers(channels, _sample_layout(i, features), source=source)
-        out.append(np.concatenate([bufs[f] for f in features]))
-    return np.stack(out).astype(np.float32, copy=False)
+    plan = plan_samples(channels.keys(), features, source)
+    return plan.stack(channels) if plan.layers else None
 
 
 def samples_from_buffers(buffers: Mapping[str, np.ndarray], features: Sequence[str]) -> np.ndarray:
@@ -119,19 +104,59 @@ def samples_from_buffers(buffers: Mapping[str, np.ndarray], features: Sequence[s
     return np.concatenate([np.asarray(buffers[f], np.float32) for f in features])[None]
 
 
+@dataclass(frozen=True)
+class SamplePlan:
+    """How a sequence's samples buffer is read: `layers` holds, per sample, the EXR channel
+    names of its features in order; empty: S = 1 from the pixel buffers named `features`."""
+
+    features: tuple[str, ...]
+    layers: tuple[tuple[str, ...], ...] = ()
+
+    @property
+    def channel_names(self) -> list[str]:
+        return [n for sample in self.layers for n in sample]
+
+    def pixel_buffers(self) -> tuple[str, ...]:
+        """The pixel buffers the samples are made from (none when the file has layers)."""
+        return () if self.layers else self.features
+
+    def stack(self, channels: Mapping[str, np.ndarray]) -> np.ndarray:
+        """(S, C, H, W) float32 from the planned sample channels of one file."""
+        return np.stack([np.stack([channels[n] for n in s], dtype=np.float32) for s in self.layers])
+
+
+def plan_samples(
+    channel_names: Collection[str], features: Sequence[str], source: str = "<file>"
+) -> SamplePlan:
+    """The SamplePlan of a file from its channel names; InputError naming the file and the
+    channel when a sample lacks one of the features."""
+    features = check_features(features)
+    present = set(channel_names)
+    layers = []
+    for i in range(sample_count(present)):
+        names = [n for f in features for n in sample_channels(i, f)]
+        missing = [n for n in names if n not in present]
+        if missing:
+            raise InputError(
+                f"{source}: sample {i} has no channel {', '.join(missing)} (per-sample features "
+                f"{', '.join(features)})"
+            )
+        layers.append(tuple(names))
+    return SamplePlan(features, tuple(layers))
+
+
 def signed_channels(features: Sequence[str]) -> tuple[list[int], list[int]]:
     """Channels of a sample that change sign under a horizontal / vertical image flip (the x and
-    y components of the normal)."""
+    y components of its screen-space features: the normal)."""
     off = feature_offsets(features)
-    if "normal" not in off:
-        return [], []
-    return [off["normal"]], [off["normal"] + 1]
+    xy = [f for f in features if f in SCREEN_XY_BUFFERS]
+    return [off[f] for f in xy], [off[f] + 1 for f in xy]
 
 
 def radiance_channels(features: Sequence[str]) -> list[int]:
     """Channels of a sample that hold radiance (scaled by a brightness augmentation)."""
     off = feature_offsets(features)
-    return [off[f] + c for f in ("color", "color_b") if f in off for c in range(3)]
+    return [off[f] + c for f in features if f in RADIANCE_BUFFERS for c in range(3)]
 
 
 __all__ = [
@@ -141,6 +166,8 @@ __all__ = [
     "feature_channels",
     "feature_offsets",
     "radiance_channels",
+    "SamplePlan",
+    "plan_samples",
     "read_samples",
     "sample_channels",
     "sample_count",

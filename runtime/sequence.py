@@ -10,12 +10,19 @@ Frames are ordered by frame number, the last integer in the file stem; two files
 the same number are an error. References default to ``ref_NNNN.exr`` beside each frame
 (same number); ``--reference`` may name a folder, glob or printf pattern instead.
 
-Non-finite input values (NaN, Inf) are replaced by 0 and counted per frame (pixels with
-any non-finite value in any buffer), so that nothing downstream sees them.
+Channels are resolved once per sequence: `plan_sequence` reads every header, maps the
+layout's layers to channel names from the first frame, checks that every frame has those
+channels at one size, and its `SequencePlan.read` then reads only the planned channels
+(converting only those to float32). `read_frame` is the one-file form of the same reader.
 
-Per-sample input (the rank-5 `samples` buffer) is read when asked for: `sample_features`
-names the features (runtime/samples.py: `sample<i>.*` layers, else S = 1 from the pixel
-buffers).
+Non-finite input values (NaN, Inf) are replaced by 0 and counted per frame (pixels with
+any non-finite value in any buffer), so that nothing downstream sees them: this is the one
+NaN/Inf pass over the input (a consumer may pass `assume_finite=True` to
+`Denoiser.process`).
+
+Per-sample input: asking for the rank-5 `samples` buffer (among `buffers`) reads the
+`sample<i>.*` layers of the per-sample features `sample_features` (runtime/samples.py; the
+default set when not given), or makes S = 1 from the pixel buffers when a file has none.
 """
 
 from __future__ import annotations
@@ -23,16 +30,17 @@ from __future__ import annotations
 import glob
 import os
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .contract import BUFFER_CHANNELS, SAMPLES
 from .errors import InputError
 from .exr import read_exr, read_exr_header, write_exr
-from .layouts import Layout, extract_buffers, get_layout, resolve_channels
-from .samples import read_samples, samples_from_buffers
+from .layouts import Layout, check_channels, get_layout, resolve_channels, stack_buffers
+from .samples import DEFAULT_SAMPLE_FEATURES, SamplePlan, plan_samples, samples_from_buffers
 
 Spec = str | os.PathLike
 _LAST_INT = re.compile(r"(\d+)(?!.*\d)")
@@ -41,8 +49,7 @@ _PRINTF = re.compile(r"%(0?\d*)d")
 
 @dataclass
 class Frame:
-    """One input frame: canonical buffers (C, H, W) float32 ((S, C, H, W) for `samples`),
-    all finite."""
+    """One input frame: canonical buffers (C, H, W) float32, all finite."""
 
     index: int  # frame number from the file name (position in the sequence if it has none)
     path: Path
@@ -136,6 +143,42 @@ def find_frames(spec: Spec | Sequence[Spec]) -> list[Path]:
     return _sorted_unique(files, "frames")
 
 
+def group_shots(specs: Sequence[Spec]) -> list[tuple[str, list[Spec]]]:
+    """Several inputs -> shots, (name, specs) each, in the order given.
+
+    Each folder, glob or printf pattern is one shot; EXR files given one by one (e.g. an
+    unquoted glob the shell expanded) are one shot per folder. A shot is named after its
+    folder, with as many parent folders as it takes to tell it from the others (``a/render``
+    and ``b/render``, but ``c``); InputError for two shots in one folder (two patterns).
+    """
+    groups: dict[tuple[str, Path], list[Spec]] = {}
+    for spec in specs:
+        path = Path(os.fspath(spec))
+        if path.is_dir():
+            key = ("folder", path.resolve())
+        elif path.is_file():
+            key = ("folder", path.parent.resolve())
+        else:  # a glob or printf pattern: a shot of its own
+            key = (os.fspath(spec), path.parent.resolve())
+        groups.setdefault(key, []).append(spec)
+    folders = [folder.parts for _, folder in groups]
+    seen: dict[tuple[str, ...], Spec] = {}
+    for parts, shot in zip(folders, groups.values(), strict=True):
+        if parts in seen:
+            raise InputError(
+                f"{os.fspath(seen[parts])} and {os.fspath(shot[0])} are two shots in one folder; "
+                "give each shot its own folder, or run them one at a time"
+            )
+        seen[parts] = shot[0]
+    names = []
+    for parts in folders:  # the shortest trailing part of its path that no other shot shares
+        k = 1
+        while k < len(parts) and any(q[-k:] == parts[-k:] for q in folders if q != parts):
+            k += 1
+        names.append("/".join(parts[-k:]))
+    return list(zip(names, groups.values(), strict=True))
+
+
 def reference_index(spec: Spec) -> dict[int | None, Path]:
     """Frame number -> reference file for a reference folder, glob, printf pattern or file."""
     files = _expand(spec, references=True)
@@ -183,15 +226,26 @@ def match_references(
     return [index.get(frame_number(p)) for p in frames]
 
 
+def nonfinite_pixels(a: np.ndarray) -> np.ndarray | None:
+    """The (H, W) mask of the pixels of a (C, H, W) (or (S, C, H, W)) float array with NaN/Inf
+    in any channel, or None when every value is finite: then it costs one pass (a sum), the
+    common case."""
+    with np.errstate(over="ignore", invalid="ignore"):  # a finite sum may overflow: recheck
+        if np.isfinite(a.sum()):
+            return None
+    bad = ~np.isfinite(a)
+    return bad.reshape(-1, *bad.shape[-2:]).any(axis=0) if bad.any() else None
+
+
 def _replace_nonfinite(buffers: dict[str, np.ndarray]) -> tuple[int, tuple[str, ...]]:
+    """NaN/Inf -> 0 in place; (pixels with any in any buffer, names of those buffers)."""
     bad_pixels: np.ndarray | None = None
     names = []
     for name, buf in buffers.items():
-        bad = ~np.isfinite(buf)
-        if bad.any():
-            buf[bad] = 0.0
+        px = nonfinite_pixels(buf)
+        if px is not None:
+            np.nan_to_num(buf, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
             names.append(name)
-            px = bad.reshape(-1, *bad.shape[-2:]).any(axis=0)
             bad_pixels = px if bad_pixels is None else bad_pixels | px
     return (0 if bad_pixels is None else int(bad_pixels.sum())), tuple(names)
 
@@ -204,34 +258,30 @@ def _check_size(path: Path, size: tuple[int, int], expect: tuple[int, int] | Non
         )
 
 
-def read_frame(
-    path: Spec,
-    layout: Layout | str = "canonical",
-    overrides: Mapping[str, str] | None = None,
-    expect_size: tuple[int, int] | None = None,
-    index: int | None = None,
-    sample_features: Sequence[str] | None = None,
-) -> Frame:
-    """Read one frame into canonical buffers (layout conversion applied, NaN/Inf -> 0).
+def _layout(layout: Layout | str) -> Layout:
+    return get_layout(layout) if isinstance(layout, str) else layout
 
-    `expect_size` = (height, width) the sequence has; a different size is an InputError.
-    `sample_features`: also read the `samples` buffer with these per-sample features.
-    """
-    path = Path(path)
-    layout = get_layout(layout) if isinstance(layout, str) else layout
-    channels = read_exr(path)
-    buffers = extract_buffers(channels, layout, overrides, source=str(path))
-    size = buffers["color"].shape[1:]
-    _check_size(path, size, expect_size)
-    samples = (
-        None if sample_features is None else read_samples(channels, sample_features, str(path))
-    )
-    if samples is not None:
-        buffers["samples"] = samples
+
+def _read_mapped(
+    path: Path,
+    layout: Layout,
+    channels: Mapping[str, Sequence[str]],
+    expect_size: tuple[int, int] | None,
+    index: int | None,
+    samples: SamplePlan | None = None,
+) -> Frame:
+    """Read the mapped channels only, stack them into float32 buffers, NaN/Inf -> 0 (one
+    pass per buffer), then the layout's conversion (and the samples buffer, if planned)."""
+    names = [n for ns in channels.values() for n in ns]
+    raw = read_exr(path, names + (samples.channel_names if samples else []), dtype=None)
+    buffers = stack_buffers(raw, channels, source=str(path))
+    _check_size(path, buffers["color"].shape[1:], expect_size)
+    if samples is not None and samples.layers:
+        buffers[SAMPLES] = samples.stack(raw)
     nonfinite, bad = _replace_nonfinite(buffers)
     buffers = layout.convert(buffers)
-    if sample_features is not None and samples is None:  # S = 1 from the pixel buffers
-        buffers["samples"] = samples_from_buffers(buffers, sample_features)
+    if samples is not None and not samples.layers:  # S = 1 from the pixel buffers
+        buffers[SAMPLES] = samples_from_buffers(buffers, samples.features)
     n = frame_number(path)
     return Frame(
         index=n if n is not None else (index or 0),
@@ -242,23 +292,176 @@ def read_frame(
     )
 
 
+def read_frame(
+    path: Spec,
+    layout: Layout | str = "canonical",
+    overrides: Mapping[str, str] | None = None,
+    expect_size: tuple[int, int] | None = None,
+    index: int | None = None,
+    *,
+    buffers: Collection[str] | None = None,
+    sample_features: Sequence[str] | None = None,
+) -> Frame:
+    """Read one frame into canonical buffers (layout conversion applied, NaN/Inf -> 0).
+
+    `expect_size` = (height, width) the sequence has; a different size is an InputError.
+    buffers: read only these (and `color`) when the file has them; None: every buffer found.
+    `samples` among them (or `sample_features` given) also reads the per-sample buffer.
+    Resolves the channels from this file's header; for a sequence, `plan_sequence` resolves
+    them once.
+    """
+    path = Path(path)
+    layout = _layout(layout)
+    header = read_exr_header(path)
+    samples = _plan_samples(header, buffers, sample_features, str(path))
+    pixel = _pixel_buffers(buffers, samples)
+    mapping = resolve_channels(header, layout, overrides, source=str(path), buffers=pixel)
+    if pixel is not None:
+        mapping = {b: names for b, names in mapping.items() if b in pixel or b == "color"}
+    return _read_mapped(path, layout, mapping, expect_size, index, samples)
+
+
+def _plan_samples(
+    header: Collection[str],
+    buffers: Collection[str] | None,
+    features: Sequence[str] | None,
+    source: str,
+) -> SamplePlan | None:
+    """The samples plan when `samples` is asked for (in `buffers` or by naming features)."""
+    if features is None and (buffers is None or SAMPLES not in buffers):
+        return None
+    return plan_samples(header, features or DEFAULT_SAMPLE_FEATURES, source)
+
+
+def _pixel_buffers(
+    buffers: Collection[str] | None, samples: SamplePlan | None
+) -> tuple[str, ...] | None:
+    """The canonical buffers to read: `buffers` without `samples`, plus those S = 1 is made of."""
+    if buffers is None:
+        return None
+    pixel = [b for b in buffers if b != SAMPLES]
+    return tuple(dict.fromkeys((*pixel, *(samples.pixel_buffers() if samples else ()))))
+
+
+@dataclass(frozen=True)
+class SequencePlan:
+    """How every frame of a sequence is read: channels resolved once, from the headers."""
+
+    layout: Layout
+    channels: Mapping[str, tuple[str, ...]]  # buffer -> EXR channel names, the buffers read
+    size: tuple[int, int]  # (height, width) of every frame
+    samples: SamplePlan | None = None  # the per-sample buffer, when asked for
+
+    def read(self, path: Spec, index: int | None = None) -> Frame:
+        """Read one frame of the sequence: only the planned channels, NaN/Inf -> 0."""
+        return _read_mapped(Path(path), self.layout, self.channels, self.size, index, self.samples)
+
+
+def _needed_mapping(
+    names: Collection[str],
+    layout: Layout,
+    overrides: Mapping[str, str],
+    buffers: Collection[str] | None,
+    source: str,
+) -> dict[str, list[str]]:
+    """resolve_channels for the buffers a model needs: each must be found."""
+    if buffers is None:
+        return resolve_channels(names, layout, overrides, source)
+    needed = list(dict.fromkeys(("color", *buffers)))
+    for b in needed:
+        value = overrides.get(b)
+        if value is not None and value.lower() == "none":
+            raise InputError(
+                f"{source}: the model needs buffer {b!r}, which --channel {b}=none leaves out"
+            )
+        if value is None and not layout.layers.get(b):
+            raise InputError(
+                f"{source}: the model needs buffer {b!r}, for which layout {layout.name} has "
+                f"no layer (use --channel {b}=LAYER)"
+            )
+    return resolve_channels(names, layout, overrides, source, buffers=needed, required=needed)
+
+
+def plan_sequence(
+    paths: Sequence[Path],
+    layout: Layout | str = "canonical",
+    overrides: Mapping[str, str] | None = None,
+    *,
+    buffers: Collection[str] | None = None,
+    sample_features: Sequence[str] | None = None,
+) -> SequencePlan:
+    """Check every frame's header and resolve the channels once, before reading pixels.
+
+    buffers: the buffers to read (a model's `required_buffers`; `color` always), each of
+        which must be found; other layers are neither checked nor read, except buffers named
+        in `overrides`, whose channels must exist. None: every buffer the first frame has.
+        `samples` among them reads the per-sample buffer (features `sample_features`, else
+        the default set): the first frame's sample layers in every frame, or S = 1 from the
+        pixel buffers when it has none.
+    The mapping comes from the first frame; every frame must hold its channels at one size.
+    Raises InputError naming the first bad file (and channel).
+    """
+    layout = _layout(layout)
+    overrides = dict(overrides or {})
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("empty sequence")
+    first = paths[0]
+    sizes = read_exr_header(first)
+    samples = _plan_samples(sizes, buffers, sample_features, str(first))
+    buffers = _pixel_buffers(buffers, samples)
+    mapping = _needed_mapping(sizes, layout, overrides, buffers, str(first))
+    if samples is not None and samples.layers:
+        mapping = {**mapping, SAMPLES: samples.channel_names}  # checked like the buffers
+    size: tuple[int, int] | None = None
+    for p in paths:
+        if p != first:
+            sizes = read_exr_header(p)
+            check_channels(sizes, mapping, layout, source=str(p))
+        names = [n for ns in mapping.values() for n in ns]
+        this = sizes[names[0]]
+        odd = next((n for n in names if sizes[n] != this), None)
+        if odd is not None:
+            (h, w), (h0, w0) = sizes[odd], this
+            raise InputError(
+                f"{p}: channel {odd!r} is {w}x{h} but channel {names[0]!r} is {w0}x{h0}"
+            )
+        if size is None:
+            size = this
+        elif this != size:
+            raise InputError(
+                f"{p}: frame is {this[1]}x{this[0]} but {first} is {size[1]}x{size[0]} "
+                "(width x height); frames are not resized"
+            )
+    assert size is not None
+    read = {
+        b: tuple(ns)
+        for b, ns in mapping.items()
+        if b != SAMPLES and (buffers is None or b in buffers or b == "color")
+    }
+    return SequencePlan(layout=layout, channels=read, size=size, samples=samples)
+
+
+def _reference_channels(names: Collection[str], layout: Layout | str, path: Path) -> list[str]:
+    """R,G,B of a reference, else the channels of the layout's `color`."""
+    if all(c in names for c in "RGB"):
+        return list("RGB")
+    only_color = {b: "none" for b in BUFFER_CHANNELS if b != "color"}
+    return resolve_channels(names, _layout(layout), only_color, source=str(path))["color"]
+
+
 def read_reference(
     path: Spec,
     layout: Layout | str = "canonical",
     expect_size: tuple[int, int] | None = None,
 ) -> np.ndarray:
     """A reference image (3, H, W) float32: channels R,G,B, else the layout's `color` source.
-    NaN/Inf are replaced by 0."""
+    NaN/Inf are replaced by 0. Reads (converts) only those three channels."""
     path = Path(path)
-    channels = read_exr(path)
-    if not all(c in channels for c in "RGB"):
-        layout = get_layout(layout) if isinstance(layout, str) else layout
-        only_color = {b: "none" for b in ("color_b", "albedo", "normal", "depth", "motion")}
-        names = resolve_channels(channels, layout, only_color, source=str(path))["color"]
-        channels = {c: channels[n] for c, n in zip("RGB", names, strict=True)}
-    rgb = np.stack([channels[c] for c in "RGB"]).astype(np.float32, copy=False)
+    names = _reference_channels(read_exr_header(path), layout, path)
+    rgb = stack_buffers(read_exr(path, names, dtype=None), {"color": names}, str(path))["color"]
     _check_size(path, rgb.shape[1:], expect_size)
-    return np.nan_to_num(rgb, nan=0.0, posinf=0.0, neginf=0.0)
+    return np.nan_to_num(rgb, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def scan_reference(
@@ -267,11 +470,7 @@ def scan_reference(
     """Header-only check of a reference: R,G,B (or the layout's colour) present, right size."""
     path = Path(path)
     sizes = read_exr_header(path)
-    names = list("RGB")
-    if not all(c in sizes for c in names):
-        layout = get_layout(layout) if isinstance(layout, str) else layout
-        only_color = {b: "none" for b in ("color_b", "albedo", "normal", "depth", "motion")}
-        names = resolve_channels(sizes, layout, only_color, source=str(path))["color"]
+    names = _reference_channels(sizes, layout, path)
     _check_size(path, sizes[names[0]], expect_size)
 
 
@@ -284,51 +483,51 @@ def scan_sequence(
 
     Returns the sequence's (height, width). Raises InputError naming the first bad file.
     """
-    layout = get_layout(layout) if isinstance(layout, str) else layout
-    size: tuple[int, int] | None = None
-    first: Path | None = None
-    for p in paths:
-        sizes = read_exr_header(p)
-        mapping = resolve_channels(sizes, layout, overrides, source=str(p))
-        used = {sizes[n] for names in mapping.values() for n in names}
-        if len(used) > 1:
-            raise InputError(f"{p}: the selected channels differ in size: {sorted(used)}")
-        (this,) = used
-        if size is None:
-            size, first = this, p
-        elif this != size:
-            raise InputError(
-                f"{p}: frame is {this[1]}x{this[0]} but {first} is {size[1]}x{size[0]} "
-                "(width x height); frames are not resized"
-            )
-    if size is None:
-        raise InputError("empty sequence")
-    return size
+    return plan_sequence(paths, layout, overrides).size
 
 
 def iter_sequence(
     spec: Spec | Sequence[Spec],
     layout: Layout | str = "canonical",
     overrides: Mapping[str, str] | None = None,
+    *,
+    buffers: Collection[str] | None = None,
     sample_features: Sequence[str] | None = None,
 ) -> Iterator[Frame]:
-    """Frames of a sequence in order, after checking all headers (channels, one size)."""
+    """Frames of a sequence in order, after checking all headers (channels, one size).
+
+    spec: a folder, glob, printf pattern or file (or a list). layout: a preset name, a layout
+    file (.toml) or a Layout. buffers: read only these (e.g. `Denoiser.required_buffers`),
+    each of which every frame must have; None: every buffer the layout finds. A per-sample
+    model's `samples` is read with `sample_features` (`sample_features_of(denoiser.config)`).
+    """
     paths = find_frames(spec)
-    size = scan_sequence(paths, layout, overrides)
+    plan = plan_sequence(paths, layout, overrides, buffers=buffers, sample_features=sample_features)
     for i, p in enumerate(paths):
-        yield read_frame(p, layout, overrides, size, i, sample_features)
+        yield plan.read(p, index=i)
 
 
 HALF_MAX = 65504.0
 
 
-def as_written(rgb: np.ndarray, half: bool = True) -> np.ndarray:
-    """The values `write_output` stores: float32, or half precision clamped to +-65504
-    (larger HDR values would become Inf in a half-float file)."""
+def quantize_output(rgb: np.ndarray, half: bool = True) -> np.ndarray:
+    """The C-contiguous array `write_output` stores: float16 clamped to +-65504 (larger HDR
+    values would become Inf in a half-float file), or float32."""
     rgb = np.asarray(rgb, dtype=np.float32)
     if not half:
-        return rgb
-    return np.clip(rgb, -HALF_MAX, HALF_MAX).astype(np.float16).astype(np.float32)
+        return np.ascontiguousarray(rgb)
+    return np.clip(rgb, -HALF_MAX, HALF_MAX).astype(np.float16)
+
+
+def as_written(rgb: np.ndarray, half: bool = True) -> np.ndarray:
+    """The values `write_output` stores, as float32."""
+    return quantize_output(rgb, half).astype(np.float32, copy=False)
+
+
+def write_rgb(path: Spec, data: np.ndarray, half: bool = True) -> Path:
+    """Write a (3, H, W) array from `quantize_output` as channels R,G,B (ZIP), atomically,
+    without converting it again."""
+    return write_exr(path, {"R": data[0], "G": data[1], "B": data[2]}, half=half)
 
 
 def write_output(path: Spec, rgb: np.ndarray, half: bool = True) -> Path:
@@ -339,5 +538,4 @@ def write_output(path: Spec, rgb: np.ndarray, half: bool = True) -> Path:
         rgb = rgb[0]
     if rgb.ndim != 3 or rgb.shape[0] != 3:
         raise ValueError(f"write_output: expected a (3, H, W) image, got {rgb.shape}")
-    rgb = as_written(rgb, half)
-    return write_exr(path, {"R": rgb[0], "G": rgb[1], "B": rgb[2]}, half=half)
+    return write_rgb(path, quantize_output(rgb, half), half)

@@ -25,13 +25,13 @@ def model() -> AFN:
 
 
 def test_filter_stages_go_through_the_custom_ops(model: AFN):
-    calls = {"KernelApply": [], "AdaptiveFusion": []}
+    calls = {"KernelApply": [], "AdaptiveFusion": [], "Reproject": []}
 
     def record(op, inputs, attrs, ms):
-        if op.name == "KernelApply":
-            calls[op.name].append((tuple(inputs[0].shape), tuple(inputs[1].shape)))
-        else:
+        if op.name == "AdaptiveFusion":
             calls[op.name].append(tuple(inputs[1].shape))
+        else:
+            calls[op.name].append((tuple(inputs[0].shape), tuple(inputs[1].shape)))
 
     with observe_calls(record):
         model(_buffers(), model.initial_state(N, H, W), torch.tensor(1.0))
@@ -41,6 +41,8 @@ def test_filter_stages_go_through_the_custom_ops(model: AFN):
         ((N, 3, H, W), (N, 25, H, W)),
     ]
     assert calls["AdaptiveFusion"] == [(N, 3, H // 2, W // 2)]
+    # the history (ta 4 + geometry 4 channels) is warped once by the motion vectors
+    assert calls["Reproject"] == [((N, 8, H, W), (N, 2, H, W))]
 
 
 def test_kernels_are_normalised_and_alpha_in_unit_range(model: AFN):
@@ -77,9 +79,9 @@ def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
 
     proto = export_model(model)
     custom = [n.op_type for n in proto.graph.node if n.domain == "rtdenoise"]
-    assert sorted(custom) == ["AdaptiveFusion", "KernelApply", "KernelApply"]
+    assert sorted(custom) == ["AdaptiveFusion", "KernelApply", "KernelApply", "Reproject"]
     ops_used = {n.op_type for n in proto.graph.node}
-    assert {"GridSample", "Conv", "ReduceMax", "Exp"} <= ops_used
+    assert {"Conv", "ReduceMax", "Exp"} <= ops_used and "GridSample" not in ops_used
     assert "Softmax" not in ops_used  # spelled out: ORT's Softmax(axis=1) is slow on CPU
     meta = {p.key: p.value for p in proto.metadata_props}
     assert meta["rtdenoise.family"] == "afn" and meta["rtdenoise.pad_multiple"] == "4"

@@ -3,15 +3,19 @@
 from __future__ import annotations
 
 import json
+import sys
 
+import pytest
 from typer.testing import CliRunner
 
 from rtdenoise.cli.bench import app
+from rtdenoise.shipped import sample_sequences
 
 runner = CliRunner()
 
 
-def test_bench_model_reports_every_path_and_stage(tmp_path):
+def test_bench_model_reports_every_path_and_stage(tmp_path, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "200")  # one table row per line
     out = tmp_path / "bench.json"
     res = runner.invoke(
         app, ["model", "demo:afn", "--size", "40x24", "--repeats", "1", "--json", str(out)]
@@ -24,8 +28,12 @@ def test_bench_model_reports_every_path_and_stage(tmp_path):
         ("AdaptiveFusion", (24, 40)),
         ("KernelApply", (12, 20)),
         ("KernelApply", (24, 40)),
+        ("Reproject", (24, 40)),
     ]
     assert all(s["calls_per_frame"] == 1 for s in data["stages"])
+    # stages are labelled WIDTHxHEIGHT, as --size is given (the tensors are N, C, H, W)
+    assert "KernelApply 40x24 x1" in res.output and "KernelApply 20x12 x1" in res.output
+    assert "afn at 40x24" in res.output
 
 
 def test_bench_op_and_its_errors():
@@ -50,3 +58,39 @@ def test_bench_op_and_its_errors():
     assert res.exit_code == 2 and "unknown op 'Nope'" in res.output
     res = runner.invoke(app, ["op", "KernelApply", "--attr", "sizes=3"])
     assert res.exit_code == 2 and "--attr 'sizes=3'" in res.output
+
+
+def test_compare_models_and_oidn_at_a_tiny_size(tmp_path):
+    """Two sizes, a shipped model on both ORT paths and OIDN fast, quality on one sequence."""
+    pytest.importorskip("pyoidn")
+    out, plot = tmp_path / "c.json", tmp_path / "c.png"
+    seq = str(sample_sequences()[0])
+    args = ["compare", "demo:wskp", "--portable", "--oidn", "fast", "--size", "24x16"]
+    args += ["--size", "48x32", "--repeats", "2", "--sequence", seq, "--json", str(out)]
+    res = runner.invoke(app, [*args, "--plot", str(plot)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    names = {"demo:wskp", "demo:wskp (portable)", "OIDN fast"}
+    assert [r["size"] for r in data["speed"]] == [[16, 24], [32, 48]]
+    for row in data["speed"]:
+        assert set(row["times_ms"]) == names and all(len(t) == 2 for t in row["times_ms"].values())
+        s = row["summary"]["OIDN fast"]
+        assert s["min_ms"] <= s["median_ms"] <= s["max_ms"]
+        assert s["ns_per_pixel"] == pytest.approx(
+            s["median_ms"] * 1e6 / (row["size"][0] * row["size"][1])
+        )
+    q = data["quality"]
+    # the same shipped model scores the same on both paths, and every denoiser beats the input
+    assert q["demo:wskp"]["mean"]["psnr"] == pytest.approx(
+        q["demo:wskp (portable)"]["mean"]["psnr"], abs=1e-3
+    )
+    for name in names:
+        assert q[name]["mean"]["psnr"] > data["noisy"]["mean"]["psnr"] + 6.0
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_compare_without_pyoidn_says_what_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pyoidn", None)
+    res = runner.invoke(app, ["compare", "demo:wskp", "--size", "8x8", "--repeats", "1"])
+    assert res.exit_code == 2
+    assert "pip install 'rtdenoise[bench]'" in res.output

@@ -32,7 +32,7 @@ def test_export_writes_validated_model(checkpoint, tmp_path):
     meta = {p.key: p.value for p in model.metadata_props}
     assert meta["rtdenoise.family"] == "afn"
     assert json.loads(meta["rtdenoise.config"])["widths"] == [8, 12]
-    assert {f.name for f in model.functions} == {"KernelApply", "AdaptiveFusion"}
+    assert {f.name for f in model.functions} == {"KernelApply", "AdaptiveFusion", "Reproject"}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afn.onnx"]
 
 

@@ -10,9 +10,11 @@ import OpenEXR
 import pytest
 from typer.testing import CliRunner
 
+import rtdenoise.runtime.sequence as sequence
 from rtdenoise.cli.run import DEFAULT_MODEL, app
 from rtdenoise.runtime import metrics
 from rtdenoise.runtime.exr import read_exr, write_exr
+from rtdenoise.runtime.preview import encode_png, to_uint8
 
 H, W = 64, 64
 runner = CliRunner()
@@ -317,3 +319,179 @@ def test_onnx_model_with_state_through_the_cli(tmp_path, monkeypatch):
     res = invoke(seqs[0], "-o", tmp_path / "o2", "--model", model, "--channel", "albedo=none")
     assert res.exit_code == 2 and "the model needs buffer 'albedo'" in res.stderr
     assert not (tmp_path / "o2").exists()
+
+
+@pytest.mark.parametrize("half", [True, False])
+def test_metrics_are_those_of_the_written_file(tmp_path, half):
+    """The scored (and previewed) array is exactly the one in the output file: re-reading
+    the outputs gives the JSON's metrics bit for bit, clamped half-range values included."""
+    seq, out = tmp_path / "seq", tmp_path / "out"
+    seq.mkdir()
+    colors, refs = make_sequence(seq, n=3)
+    ch = read_exr(seq / "frame_0002.exr")
+    ch["G"][1, 2], ch["B"][5, 6] = 1e6, 70000.0  # beyond half range: stored as 65504
+    write_exr(seq / "frame_0002.exr", ch, half=False)
+    js = tmp_path / "m.json"
+    res = invoke(seq, "-o", out, "--metrics-json", js, "--preview", "--half" if half else "--float")
+    assert res.exit_code == 0, res.output
+    data = json.loads(js.read_text())
+    written = [rgb(out / f"frame_{k:04d}.exr") for k in (1, 2, 3)]
+    assert written[1][1, 1, 2] == (65504.0 if half else 1e6)
+    expected = metrics.SequenceMetrics()
+    for row, w, ref, k in zip(data["frames"], written, refs, (1, 2, 3), strict=True):
+        got = expected.add(w, ref)
+        assert {key: row[key] for key in got} == got
+        assert (out / f"frame_{k:04d}.png").read_bytes() == encode_png(to_uint8(w))
+    summary = expected.summary()
+    assert data["mean"] == {key: summary[key] for key in ("psnr", "ssim", "smape", "relmse")}
+    assert data["trmae"] == summary["trmae"]
+
+
+def _with_albedo(seq, k, albedo):
+    """Replace frame k's albedo layer: None drops it, else an (h, w) array (another part)."""
+    ch = read_exr(seq / f"frame_{k:04d}.exr")
+    for c in "RGB":
+        del ch[f"albedo.{c}"]
+    path = seq / f"frame_{k:04d}.exr"
+    if albedo is None:
+        write_exr(path, ch, half=False)
+        return
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    windows = [((0, 0), (W - 1, H - 1)), ((0, 0), (albedo.shape[1] - 1, albedo.shape[0] - 1))]
+    parts = []
+    for i, (chans, win) in enumerate(
+        zip([ch, {f"albedo.{c}": albedo for c in "RGB"}], windows, strict=True)
+    ):
+        hdr = header | {
+            "displayWindow": tuple(np.array(v, np.int32) for v in windows[0]),
+            "dataWindow": tuple(np.array(v, np.int32) for v in win),
+        }
+        parts.append(OpenEXR.Part(hdr, chans, name=f"p{i}"))
+    OpenEXR.File(parts).write(str(path))
+
+
+@pytest.mark.parametrize("albedo", ["absent", "wrong size"])
+def test_only_the_buffers_the_model_needs_are_read(tmp_path, albedo):
+    """An unused layer may be absent or of another size; a needed one is an error naming
+    the file and the channel, before any output is written."""
+    from contract_models import ema_model
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    make_sequence(seq, n=3)
+    _with_albedo(seq, 2, None if albedo == "absent" else np.ones((H + 2, W), np.float32))
+    res = invoke(seq, "-o", tmp_path / "none")  # pass-through needs only color
+    assert res.exit_code == 0, res.output
+    assert len(list((tmp_path / "none").glob("*.exr"))) == 3
+    model = tmp_path / "ema.onnx"  # needs color and albedo
+    model.write_bytes(ema_model())
+    res = invoke(seq, "-o", tmp_path / "ema", "--model", model)
+    assert res.exit_code == 2
+    expected = {
+        "absent": "missing channel albedo.R, albedo.G, albedo.B for buffer 'albedo'",
+        "wrong size": "channel 'albedo.R' is 64x66 but channel 'R' is 64x64",
+    }[albedo]
+    expected = f"{seq / 'frame_0002.exr'}: {expected}"
+    assert expected in res.stderr and res.stderr.count("\n") == 1, res.stderr
+    assert not (tmp_path / "ema").exists()
+
+
+def test_channels_resolved_once_per_sequence(tmp_path, monkeypatch):
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    make_sequence(seq, n=4)
+    resolves, reads = [], []
+    real_resolve, real_read = sequence.resolve_channels, sequence.read_exr
+
+    def resolve(*args, **kwargs):
+        resolves.append(args[-1] if len(args) > 3 else kwargs.get("source"))
+        return real_resolve(*args, **kwargs)
+
+    def read(path, channels=None, **kwargs):
+        reads.append((path.name, channels))
+        return real_read(path, channels, **kwargs)
+
+    monkeypatch.setattr(sequence, "resolve_channels", resolve)
+    monkeypatch.setattr(sequence, "read_exr", read)
+    res = invoke(seq, "-o", tmp_path / "out")
+    assert res.exit_code == 0, res.output
+    assert resolves == [str(seq / "frame_0001.exr")]  # once, from the first frame's header
+    frames = [r for r in reads if r[0].startswith("frame_")]
+    assert frames == [(f"frame_{k:04d}.exr", ["R", "G", "B"]) for k in (1, 2, 3, 4)]
+    assert all(c == list("RGB") for name, c in reads if name.startswith("ref_"))
+
+
+def test_several_inputs_are_several_shots(tmp_path):
+    """Two folders with the same frame numbers: two sequences (state reset each), each into
+    OUT/<shot>/, one JSON with both; same folder names are told apart by their parents."""
+    shots = [tmp_path / "a" / "render", tmp_path / "b" / "render", tmp_path / "c"]
+    colors = {}
+    for i, s in enumerate(shots):
+        s.mkdir(parents=True)
+        colors[s], _ = make_sequence(s, n=2, seed=i)
+    out, js = tmp_path / "out", tmp_path / "m.json"
+    glob = str(shots[2] / "frame_*.exr")
+    res = invoke(shots[0], shots[1], glob, "-o", out, "--metrics-json", js)
+    assert res.exit_code == 0, res.output
+    names = ["a/render", "b/render", "c"]
+    assert [s["name"] for s in json.loads(js.read_text())["sequences"]] == names
+    for name, s in zip(names, shots, strict=True):
+        got = rgb(out / name / "frame_0002.exr")
+        np.testing.assert_allclose(got, colors[s][1], rtol=2**-10, atol=1e-6)
+    assert "over 3 sequences" in res.stdout
+
+
+def test_files_listed_one_by_one_are_one_shot(tmp_path):
+    """An unquoted glob the shell expanded: the files of one folder stay one sequence."""
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    make_sequence(seq, n=3)
+    files = sorted(p for p in seq.glob("frame_*.exr"))
+    res = invoke(*files, "-o", tmp_path / "out")
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [p.name for p in files]
+
+
+def test_several_shots_refuse_one_reference_and_two_patterns_in_a_folder(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for s in (a, b):
+        s.mkdir()
+        make_sequence(s, n=1)
+    res = invoke(a, b, "-o", tmp_path / "o", "--reference", a)
+    assert res.exit_code == 2 and "--reference names the references of one shot" in res.stderr
+    res = invoke(a / "frame_*.exr", a / "frame_%04d.exr", "-o", tmp_path / "o")
+    assert res.exit_code == 2 and "are two shots in one folder" in res.stderr
+    assert not (tmp_path / "o").exists()
+
+
+def test_provider_choice(tmp_path):
+    from contract_models import ema_model
+
+    seq, model = tmp_path / "seq", tmp_path / "ema.onnx"
+    seq.mkdir()
+    make_sequence(seq, n=1, refs=False)
+    model.write_bytes(ema_model())
+    res = invoke(seq, "-o", tmp_path / "out", "--model", model, "--provider", "cpu")
+    assert res.exit_code == 0, res.output
+    res = invoke(seq, "-o", tmp_path / "o2", "--model", model, "-p", "NopeExecutionProvider")
+    assert res.exit_code == 2
+    assert "execution provider 'NopeExecutionProvider' is not available" in res.stderr
+    assert "CPUExecutionProvider" in res.stderr and res.stderr.count("\n") == 1
+
+
+def test_layout_file_and_show_layout(tmp_path):
+    """`--show-layout blender` prints the preset; an edited copy is a `--layout` file."""
+    res = invoke("--show-layout", "blender")
+    assert res.exit_code == 0 and "[buffers.motion]" in res.stdout
+    text = res.stdout.replace('layers = ["Noisy Image", "Combined"]', 'layers = ["beauty"]')
+    mine = tmp_path / "my_renderer.toml"
+    mine.write_text(text)
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    noisy = np.random.default_rng(0).random((3, H, W), dtype=np.float32)
+    write_exr(seq / "f_0001.exr", {f"beauty.{c}": noisy[i] for i, c in enumerate("RGB")})
+    res = invoke(seq, "-o", tmp_path / "out", "--layout", mine)
+    assert res.exit_code == 0, res.output
+    np.testing.assert_allclose(rgb(tmp_path / "out" / "f_0001.exr"), noisy, rtol=2**-10, atol=1e-6)
+    res = invoke(seq, "-o", tmp_path / "o2", "--layout", tmp_path / "missing.toml")
+    assert res.exit_code == 2 and "missing.toml: no such layout file" in res.stderr

@@ -17,7 +17,7 @@ from rtdenoise.runtime.sequence import find_frames, match_references, read_frame
 from rtdenoise.shipped import MODELS_DIR, sample_sequences
 
 # family -> minimum PSNR gain over the noisy input, dB
-MIN_GAIN_DB = {"afn": 6.0, "wskp": 6.0, "affinity": 6.0}
+MIN_GAIN_DB = {"afn": 6.0, "wskp": 6.0, "nbg": 6.0, "crossreg": 6.0, "affinity": 6.0}
 FAMILIES = sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) if MODELS_DIR.is_dir() else []
 
 
@@ -44,7 +44,7 @@ def sequences():
 
 
 def test_every_family_with_a_gain_threshold_ships_a_demo():
-    assert {"afn", "wskp"} <= set(FAMILIES)
+    assert {"afn", "wskp", "nbg"} <= set(FAMILIES)
     assert set(FAMILIES) <= set(MIN_GAIN_DB)
 
 

@@ -145,6 +145,24 @@ def test_nonfinite_inputs_replaced_and_counted(ema: bytes, io_binding: bool) -> 
     assert np.isnan(bad[0, 0, 0])  # the caller's array is untouched
 
 
+def test_assume_finite_skips_the_input_scan(ema: bytes) -> None:
+    """For input already sanitised (read_frame's): same result, no second NaN/Inf pass. It is
+    the caller's promise: a NaN given anyway is neither counted nor replaced."""
+    checked, trusting = (Denoiser(ema, fast_kernels=False) for _ in range(2))
+    colors, albedos = frames(3, 16, 16), frames(3, 16, 16, 1)
+    for color, albedo in zip(colors, albedos, strict=True):
+        a = checked.process({"color": color, "albedo": albedo})
+        b = trusting.process({"color": color, "albedo": albedo}, assume_finite=True)
+        np.testing.assert_array_equal(a, b)
+    bad = colors[0].copy()
+    bad[0, 0, 0] = np.nan
+    with pytest.warns(RuntimeWarning, match="NaN/Inf state"):  # it reached the model
+        out = trusting.process({"color": bad, "albedo": albedos[0]}, assume_finite=True)
+    assert trusting.last_nonfinite == 0 and np.isnan(out[0, 0, 0])
+    out = checked.process({"color": bad, "albedo": albedos[0]})  # the default still sanitises
+    assert checked.last_nonfinite == 1 and np.isfinite(out).all()
+
+
 @pytest.mark.parametrize("io_binding", [True, False])
 def test_nonfinite_state_replaced(probe: bytes, io_binding: bool) -> None:
     den = Denoiser(probe, fast_kernels=False, io_binding=io_binding)
@@ -290,3 +308,59 @@ def test_providers(ema: bytes) -> None:
     assert den.providers == ["CPUExecutionProvider"]
     with pytest.raises(InputError, match="threads must be >= 1"):
         Denoiser(ema, fast_kernels=False, threads=0)
+
+
+@pytest.mark.parametrize("io_binding", [True, False])
+def test_interleaved_half_float_with_alpha(ema: bytes, io_binding: bool) -> None:
+    """A renderer's (H, W, 4) half-float RGBA and (H, W, 3) albedo: alpha ignored, same frames
+    as planar float32 of the same values, output interleaved like `color`."""
+    planar = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
+    den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
+    rng = np.random.default_rng(1)
+    for color, albedo in zip(frames(3, 10, 13), frames(3, 10, 13, 1), strict=True):
+        rgba = np.concatenate([color.transpose(1, 2, 0), rng.random((10, 13, 1))], axis=2)
+        rgba = rgba.astype(np.float16)
+        out = den.process({"color": rgba, "albedo": albedo.transpose(1, 2, 0)})
+        expected = planar.process({"color": rgba[..., :3].transpose(2, 0, 1), "albedo": albedo})
+        assert out.shape == (10, 13, 3) and out.dtype == np.float32 and out.flags.c_contiguous
+        np.testing.assert_array_equal(out, expected.transpose(1, 2, 0))
+    assert den.frame_index == 3
+
+
+def test_out_arrays_are_filled_in_place(ema: bytes) -> None:
+    den = Denoiser(ema, fast_kernels=False)
+    ref = Denoiser(ema, fast_kernels=False)
+    color, albedo = frames(1, 9, 11)[0], frames(1, 9, 11, 1)[0]
+    expected = ref.process({"color": color, "albedo": albedo})
+    rgba = np.full((9, 11, 4), 7.0, np.float32)  # an RGBA framebuffer: alpha stays 7
+    assert den.process({"color": color, "albedo": albedo}, out=rgba) is rgba
+    np.testing.assert_array_equal(rgba[..., :3], expected.transpose(1, 2, 0))
+    assert (rgba[..., 3] == 7.0).all()
+    half = np.zeros((3, 9, 11), np.float16)  # a half-float target clamps, never overflows
+    den.reset()
+    den.process({"color": color * 1e6, "albedo": albedo}, out=half)
+    assert np.isfinite(half).all() and half.max() == np.float16(65504)
+    for bad, match in [
+        (np.zeros((9, 11, 2), np.float32), r"out has shape \(9, 11, 2\); expected \(3, 9, 11\)"),
+        (np.zeros((3, 9, 11), np.float64), "out must be a float32 or float16 numpy array"),
+        ([[0.0]], "got list"),
+    ]:
+        with pytest.raises(InputError, match=match):
+            den.process({"color": color, "albedo": albedo}, out=bad)
+
+
+def test_layout_tie_and_forced_channels_last(ema: bytes) -> None:
+    """(3, 8, 3) fits planar (a 3-pixel-wide frame) and interleaved (3 pixels tall): planar
+    unless channels_last=True; interleaved depth may be (H, W)."""
+    from rtdenoise.runtime.denoiser import _is_interleaved
+
+    den = Denoiser(ema, fast_kernels=False)
+    tie = np.ones((3, 8, 3), np.float32)
+    assert den.process({"color": tie, "albedo": tie}).shape == (3, 8, 3)
+    out = den.process({"color": tie, "albedo": tie}, channels_last=True)
+    assert out.shape == (3, 8, 3) and den.frame_index == 1  # 3x8 frames: a new history
+    assert _is_interleaved(np.zeros((5, 7)), 1, None)
+    assert not _is_interleaved(np.zeros((1, 5, 7)), 1, None)
+    assert not _is_interleaved(np.zeros((5, 7, 3)), 3, False)
+    with pytest.raises(InputError, match=r"or \(H, W, 3\[\+alpha\]\), float32 or float16"):
+        den.process({"color": np.zeros((8, 8, 5), np.float32), "albedo": tie})

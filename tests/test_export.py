@@ -70,6 +70,15 @@ def test_contract_names_and_metadata(exported):
     assert len(reset.type.tensor_type.shape.dim) == 0
 
 
+def test_no_node_metadata_leaks_the_exporting_machine(exported):
+    _, proto = exported
+    assert all(not n.metadata_props for n in proto.graph.node)
+    assert (
+        b"/work/" not in proto.SerializeToString()
+        and b"stack_trace" not in proto.SerializeToString()
+    )
+
+
 def test_export_then_parse_gives_back_the_declaration(exported):
     """The exporter writes with the contract module and the runtime reads with it: the parsed
     contract of the exported file is exactly what the model declared."""

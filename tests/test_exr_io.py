@@ -11,7 +11,13 @@ import pytest
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.exr import read_exr, read_exr_header, write_exr
 from rtdenoise.runtime.preview import encode_png, to_uint8, write_png
-from rtdenoise.runtime.sequence import read_frame, read_reference, write_output
+from rtdenoise.runtime.sequence import (
+    as_written,
+    quantize_output,
+    read_frame,
+    read_reference,
+    write_output,
+)
 
 H, W = 48, 64
 
@@ -118,11 +124,11 @@ def test_png_preview_values(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["p.png"]
 
 
-def test_truncated_multipart_is_an_error(tmp_path):
-    # OpenEXR 3.5 silently drops the parts it cannot read; read_exr must not.
+def _three_part_file(path, seed: int):
+    """A multi-part EXR with parts VL.P0..VL.P2, channels R,G,B each (32 x 32)."""
     import OpenEXR
 
-    rng = np.random.default_rng(4)
+    rng = np.random.default_rng(seed)
     parts = [
         OpenEXR.Part(
             {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
@@ -131,10 +137,55 @@ def test_truncated_multipart_is_an_error(tmp_path):
         )
         for i in range(3)
     ]
-    path = tmp_path / "m.exr"
     OpenEXR.File(parts).write(str(path))
-    assert len(read_exr(path)) == 9
+    return path
+
+
+def _truncate(path, keep: float = 0.8) -> None:
     data = path.read_bytes()
-    path.write_bytes(data[: int(len(data) * 0.8)])
+    path.write_bytes(data[: int(len(data) * keep)])  # the last part loses its pixels
+
+
+def test_truncated_multipart_is_an_error(tmp_path):
+    # OpenEXR 3.5 silently drops the parts it cannot read; read_exr must not.
+    path = _three_part_file(tmp_path / "m.exr", 4)
+    assert len(read_exr(path)) == 9
+    _truncate(path)
     with pytest.raises(InputError, match=r"m\.exr: cannot read EXR \(truncated or corrupt"):
         read_exr(path)
+
+
+def test_read_exr_subset_converts_only_the_channels_asked_for(tmp_path):
+    rng = np.random.default_rng(5)
+    ch = canonical_channels(rng)
+    path = write_exr(tmp_path / "h.exr", ch)  # half floats
+    got = read_exr(path, ["G", "depth.Z"])
+    assert list(got) == ["G", "depth.Z"] and all(a.dtype == np.float32 for a in got.values())
+    np.testing.assert_array_equal(got["G"], ch["G"].astype(np.float16).astype(np.float32))
+    raw = read_exr(path, ["R"], dtype=None)  # the file's own type, for converting while stacking
+    assert raw["R"].dtype == np.float16 and raw["R"].flags.c_contiguous
+    with pytest.raises(InputError, match=r"h\.exr: no channel 'albedo\.A'; channels present: B, G"):
+        read_exr(path, ["R", "albedo.A"])
+
+
+def test_subset_of_a_truncated_multipart_file(tmp_path):
+    """A part dropped by OpenEXR is an error when a channel asked for was in it."""
+    path = _three_part_file(tmp_path / "m.exr", 6)
+    _truncate(path)
+    with pytest.raises(InputError, match=r"m\.exr: cannot read EXR \(truncated .* 'VL\.P2\.G'"):
+        read_exr(path, ["VL.P0.R", "VL.P2.G"])
+
+
+def test_quantize_once_half_and_float(tmp_path):
+    rgb = np.random.default_rng(7).normal(0, 3e4, (3, 8, 9)).astype(np.float32)
+    rgb[0, 0, 0], rgb[1, 0, 0] = 1e6, -1e6
+    q = quantize_output(rgb)
+    assert q.dtype == np.float16 and q.flags.c_contiguous and np.isfinite(q).all()
+    assert (q[0, 0, 0], q[1, 0, 0]) == (65504, -65504)
+    np.testing.assert_array_equal(q, np.clip(rgb, -65504, 65504).astype(np.float16))
+    np.testing.assert_array_equal(as_written(rgb), q.astype(np.float32))
+    assert quantize_output(rgb, half=False) is rgb  # float32 contiguous: no copy
+    write_output(tmp_path / "o.exr", rgb)
+    ch = read_exr(tmp_path / "o.exr", dtype=None)
+    assert ch["R"].dtype == np.float16
+    np.testing.assert_array_equal(np.stack([ch[c] for c in "RGB"]), q)

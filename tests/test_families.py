@@ -38,7 +38,7 @@ def test_forward_shapes_state_and_range(model):
     assert out.shape == (N, 3, H, W)
     assert set(nxt) == {s.name for s in model.state_specs}
     for spec in model.state_specs:
-        assert nxt[spec.name].shape == (N, spec.channels, H // spec.scale, W // spec.scale)
+        assert nxt[spec.name].shape == (N, spec.channels, *spec.spatial(H, W))
     assert torch.isfinite(out).all() and float(out.min()) >= 0.0
     # extreme but legal inputs: fireflies, zero albedo, background depth, zero normals
     b = random_buffers(1, N, H, W)
@@ -69,6 +69,11 @@ def test_reset_ignores_state_values(model):
     g = torch.Generator().manual_seed(9)
     s1 = {k: torch.rand(v.shape, generator=g) * 10 for k, v in model.initial_state(N, H, W).items()}
     s2 = {k: torch.rand(v.shape, generator=g) for k, v in model.initial_state(N, H, W).items()}
+    # an online model's control states (rtdenoise.online "controls") are host inputs, read
+    # even with reset = 1 (docs/contract.md): give both calls the default (0)
+    controls = set((model.declaration().online or {}).get("controls", []))
+    for name in controls:
+        s1[name] = s2[name] = torch.zeros_like(s1[name])
     o1, n1 = model(b, s1, torch.tensor(1.0))
     o2, n2 = model(b, s2, torch.tensor(1.0))
     torch.testing.assert_close(o1, o2, atol=0, rtol=0)
@@ -77,8 +82,9 @@ def test_reset_ignores_state_values(model):
     # without reset, a valid history changes the result (the state is really used)
     static = dict(b, motion=torch.zeros(N, 2, H, W))
     _, warm = model(static, s1, torch.tensor(1.0))
-    if "ta" in warm:  # brighter accumulated history, same geometry: still valid
-        warm = dict(warm, ta=warm["ta"] * 3.0 + 1.0)
+    # brighter history (and other learned state), same geometry: still valid
+    keep = {"geometry", *controls}
+    warm = {k: v if k in keep else v * 3.0 + 1.0 for k, v in warm.items()}
     o3, _ = model(static, warm, torch.tensor(0.0))
     o4, _ = model(static, warm, torch.tensor(1.0))
     assert float((o3 - o4).abs().max()) > 1e-3

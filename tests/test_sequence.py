@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import rtdenoise.runtime.sequence as sequence
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.exr import write_exr
 from rtdenoise.runtime.sequence import (
@@ -13,6 +14,7 @@ from rtdenoise.runtime.sequence import (
     frame_number,
     iter_sequence,
     match_references,
+    plan_sequence,
     read_frame,
     read_reference,
     reference_index,
@@ -125,3 +127,114 @@ def test_scan_reports_missing_channel_before_reading(seq):
     write_exr(seq / "frame_0003.exr", {"R": np.zeros((4, 5)), "G": np.zeros((4, 5))})
     with pytest.raises(InputError, match=r"frame_0003\.exr: missing channel B .*present: G, R"):
         scan_sequence(find_frames(seq))
+
+
+def canonical_frame(path, value: float, h: int = 4, w: int = 5, **layers):
+    """R,G,B plus layers given as name=(components, (h, w) or None for the frame's size);
+    a layer of another size goes into a part of its own (multi-part file)."""
+    import OpenEXR
+
+    parts: dict[tuple[int, int], dict[str, np.ndarray]] = {(h, w): {}}
+    parts[(h, w)] |= {c: np.full((h, w), value + i, np.float32) for i, c in enumerate("RGB")}
+    for layer, (comps, size) in layers.items():
+        size = size or (h, w)
+        parts.setdefault(size, {}).update(
+            {f"{layer}.{c}": np.full(size, value, np.float32) for c in comps}
+        )
+
+    def window(hh: int, ww: int) -> tuple[np.ndarray, np.ndarray]:
+        return np.array([0, 0], np.int32), np.array([ww - 1, hh - 1], np.int32)
+
+    headers = [
+        {
+            "compression": OpenEXR.ZIP_COMPRESSION,
+            "type": OpenEXR.scanlineimage,
+            "displayWindow": window(h, w),  # one per file, every part the same
+            "dataWindow": window(*size),
+        }
+        for size in parts
+    ]
+    OpenEXR.File(
+        [
+            OpenEXR.Part(hdr, ch, name=f"p{i}")
+            for i, (hdr, ch) in enumerate(zip(headers, parts.values(), strict=True))
+        ]
+    ).write(str(path))
+    return path
+
+
+def _spy(monkeypatch, name):
+    """Record the calls of sequence.<name> (args, kwargs), still calling it."""
+    calls = []
+    real = getattr(sequence, name)
+
+    def spy(*args, **kwargs):
+        calls.append((args, kwargs))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(sequence, name, spy)
+    return calls
+
+
+def test_plan_resolves_once_and_reads_only_the_planned_channels(tmp_path, monkeypatch):
+    for n in range(1, 5):
+        canonical_frame(
+            tmp_path / f"f_{n}.exr",
+            n,
+            albedo=("RGB", None),
+            normal=("XYZ", None),
+            depth=("Z", None),
+        )
+    paths = find_frames(tmp_path)
+    resolves = _spy(monkeypatch, "resolve_channels")
+    reads = _spy(monkeypatch, "read_exr")
+    plan = plan_sequence(paths, buffers=("color", "depth"))
+    assert len(resolves) == 1 and reads == []  # headers only, one resolve for 4 frames
+    assert plan.channels == {"color": ("R", "G", "B"), "depth": ("depth.Z",)}
+    frames = [plan.read(p, index=i) for i, p in enumerate(paths)]
+    assert len(resolves) == 1  # reading reuses the mapping
+    assert [a[1] for a, _ in reads] == [["R", "G", "B", "depth.Z"]] * 4  # nothing else read
+    assert all(set(f.buffers) == {"color", "depth"} for f in frames)
+    assert all(b.dtype == np.float32 for f in frames for b in f.buffers.values())
+    np.testing.assert_array_equal(frames[3].buffers["depth"], np.full((1, 4, 5), 4.0))
+    assert plan_sequence(paths).channels.keys() == {"color", "albedo", "normal", "depth"}
+
+
+def test_unused_layers_are_not_checked_needed_ones_are(tmp_path):
+    canonical_frame(tmp_path / "f_1.exr", 1, albedo=("RGB", None), junk=("RGB", None))
+    canonical_frame(tmp_path / "f_2.exr", 2, albedo=("RGB", (6, 5)), junk=("RG", None))
+    canonical_frame(tmp_path / "f_3.exr", 3)  # no albedo at all
+    paths = find_frames(tmp_path)
+    plan = plan_sequence(paths, buffers=("color",))  # albedo unused: odd sizes do not matter
+    assert plan.size == (4, 5) and set(plan.read(paths[2]).buffers) == {"color"}
+    with pytest.raises(InputError, match=r"f_2\.exr: channel 'albedo\.R' is 5x6 but channel 'R'"):
+        plan_sequence(paths, buffers=("color", "albedo"))
+    with pytest.raises(
+        InputError, match=r"f_3\.exr: missing channel albedo\.R, albedo\.G, albedo\.B for buffer"
+    ):
+        plan_sequence(paths[::2], buffers=("albedo",))
+    with pytest.raises(InputError, match=r"f_3\.exr: .*buffer 'albedo'.*present: B, G, R"):
+        plan_sequence(paths[2:], buffers=("albedo",))  # the first frame lacks it
+    with pytest.raises(InputError, match=r"f_1\.exr: the model needs buffer 'albedo', which"):
+        plan_sequence(paths, overrides={"albedo": "none"}, buffers=("albedo",))
+    with pytest.raises(InputError, match=r"f_1\.exr: the model needs buffer 'color_b', for which"):
+        plan_sequence(paths, "blender", buffers=("color_b",))
+
+
+def test_mapping_comes_from_the_first_frame(tmp_path):
+    """Every frame must hold the first frame's channels, even where a per-file resolve would
+    have found the buffer elsewhere (one layout per sequence)."""
+    canonical_frame(tmp_path / "f_1.exr", 1, normal=("XYZ", None))
+    canonical_frame(tmp_path / "f_2.exr", 2, normal=("RGB", None))
+    paths = find_frames(tmp_path)
+    assert read_frame(paths[1]).buffers.keys() == {"color", "normal"}
+    with pytest.raises(InputError, match=r"f_2\.exr: missing channel normal\.X, normal\.Y"):
+        plan_sequence(paths, buffers=("normal",))
+
+
+def test_read_frame_buffers_subset(tmp_path):
+    path = canonical_frame(tmp_path / "f_7.exr", 7, albedo=("RGB", (2, 2)), depth=("Z", None))
+    frame = read_frame(path, buffers=("depth",))  # the odd-sized albedo is not read
+    assert frame.index == 7 and set(frame.buffers) == {"color", "depth"}
+    with pytest.raises(InputError, match=r"f_7\.exr: channel 'albedo\.R' is 2x2 but channel 'R'"):
+        read_frame(path)  # every buffer: the albedo counts

@@ -20,7 +20,8 @@ import onnx
 from onnx import defs, helper
 from onnxscript import values
 
-from rtdenoise.ops import DOMAIN, DOMAIN_VERSION, OpSpec, get_spec
+from rtdenoise.ops import DOMAIN, DOMAIN_VERSION, OpSpec
+from rtdenoise.ops.spec import form_decorator
 
 OPSET = 18  # ai.onnx opset of exported models (ORT 1.31 accepts <= 26)
 IR_VERSION = 10  # ORT 1.31 accepts <= 13; onnx 1.23's make_model default (14) is refused
@@ -98,21 +99,15 @@ class OnnxForm:
 ONNX_FORMS: dict[str, OnnxForm] = {}
 
 
-def function_body(spec: OpSpec | str) -> Callable[[BodyBuilder], OnnxForm]:
-    """Decorator: a body builder (opset -> standard-op nodes over the spec's input and output
-    names; attributes via `attr_const`) -> the op's registered OnnxForm."""
-    spec = get_spec(spec) if isinstance(spec, str) else spec
+def _onnx_form(spec: OpSpec, body: BodyBuilder) -> OnnxForm:
+    schema = make_schema(spec)
+    op = values.Op(CUSTOM_OPSET, spec.name, schema)  # an onnxscript Op must carry its schema
+    return OnnxForm(spec, schema, make_translation(spec, op), body)
 
-    def wrap(body: BodyBuilder) -> OnnxForm:
-        if spec.name in ONNX_FORMS:
-            raise ValueError(f"{spec.name} has two ONNX function bodies")
-        schema = make_schema(spec)
-        op = values.Op(CUSTOM_OPSET, spec.name, schema)  # an onnxscript Op must carry its schema
-        form = OnnxForm(spec, schema, make_translation(spec, op), body)
-        ONNX_FORMS[spec.name] = form
-        return form
 
-    return wrap
+# Decorator: a body builder (opset -> standard-op nodes over the spec's input and output
+# names; attributes via `attr_const`) -> the op's registered OnnxForm.
+function_body = form_decorator(ONNX_FORMS, "ONNX function body", _onnx_form)
 
 
 def int_const(name: str, value: list[int] | int) -> onnx.NodeProto:

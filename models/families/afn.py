@@ -170,10 +170,7 @@ class AFN(DenoiserModel):
 
     def __init__(self, config: AFNConfig | dict | None = None) -> None:
         super().__init__()
-        if not isinstance(config, AFNConfig):
-            config = AFNConfig.from_dict(config)
-        config.validate()
-        self.cfg = config
+        self.cfg = config = AFNConfig.of(config)
         self.pad_multiple = 2 ** (len(config.widths) - 1)
         # r_1spp (3) + r_TA (3) + albedo (3) + normal (3) + depth (1) [+ TA weight (1)]
         in_channels = 13 + int(config.history_input)

@@ -134,10 +134,7 @@ class WSKP(DenoiserModel):
 
     def __init__(self, config: WSKPConfig | dict | None = None) -> None:
         super().__init__()
-        if not isinstance(config, WSKPConfig):
-            config = WSKPConfig.from_dict(config)
-        config.validate()
-        self.cfg = config
+        self.cfg = config = WSKPConfig.of(config)
         self.importance_net = ImportanceNet(INPUT_CHANNELS, 2 * len(config.sizes), config)
 
     def forward(

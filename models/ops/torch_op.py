@@ -20,7 +20,8 @@ from collections.abc import Callable, Iterator
 
 import torch
 
-from rtdenoise.ops import DOMAIN, OpSpec, get_spec
+from rtdenoise.ops import DOMAIN, OpSpec
+from rtdenoise.ops.spec import form_decorator
 
 from .export_mode import use_custom_op
 
@@ -90,18 +91,8 @@ class TorchOp:
         return f"TorchOp({self.spec.name})"
 
 
-def torch_op(spec: OpSpec | str) -> Callable[[Callable[..., torch.Tensor]], TorchOp]:
-    """Decorator: the reference function (inputs, then attributes as keywords) -> TorchOp."""
-    spec = get_spec(spec) if isinstance(spec, str) else spec
-
-    def wrap(reference: Callable[..., torch.Tensor]) -> TorchOp:
-        if spec.name in TORCH_OPS:
-            raise ValueError(f"{spec.name} has two torch forms")
-        op = TorchOp(spec, reference)
-        TORCH_OPS[spec.name] = op
-        return op
-
-    return wrap
+# Decorator: the reference function (inputs, then attributes as keywords) -> TorchOp.
+torch_op = form_decorator(TORCH_OPS, "torch form", TorchOp)
 
 
 @contextlib.contextmanager

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from rtdenoise.ops import OpSpec, get_spec
+from rtdenoise.ops import OpSpec
+from rtdenoise.ops.spec import form_decorator
 
 Driver = Callable[..., None]
 WARMUP_SHAPE = (1, 1, 4, 6)  # tiny image: compiles (or loads from numba's cache) every kernel
@@ -67,15 +68,5 @@ class FastKernel:
 KERNELS: dict[str, FastKernel] = {}
 
 
-def fast_kernel(spec: OpSpec | str) -> Callable[[Driver], FastKernel]:
-    """Decorator: a numba driver (inputs, outputs, int attributes) -> the op's FastKernel."""
-    spec = get_spec(spec) if isinstance(spec, str) else spec
-
-    def wrap(driver: Driver) -> FastKernel:
-        if spec.name in KERNELS:
-            raise ValueError(f"{spec.name} has two fast kernels")
-        kernel = FastKernel(spec, driver)
-        KERNELS[spec.name] = kernel
-        return kernel
-
-    return wrap
+# Decorator: a numba driver (inputs, outputs, int attributes) -> the op's FastKernel.
+fast_kernel = form_decorator(KERNELS, "fast kernel", FastKernel)

@@ -1,0 +1,220 @@
+"""`denoise-bench compare`: exported models and Open Image Denoise on the same frames."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from .common import parse_size, user_errors, write_json
+
+console = Console()
+DEFAULT_SIZES = ("320x240", "1280x720", "1920x1080")
+
+
+def _onnx_source(spec: str) -> str | bytes:
+    """An .onnx path or demo:<family> as is; a .pt checkpoint exported in memory (needs torch)."""
+    if spec.endswith((".pt", ".pth")):
+        from rtdenoise.export.onnx_export import export_model
+        from rtdenoise.models.checkpoint import load_checkpoint
+
+        model, _ = load_checkpoint(spec)
+        return export_model(model).SerializeToString()
+    return spec
+
+
+def _sequences(folders: list[Path]) -> list[tuple[str, list[dict], list]]:
+    """(name, frames, references) of each folder with references (default: the bundled ones)."""
+    from rtdenoise.runtime.errors import InputError
+    from rtdenoise.runtime.sequence import (
+        find_frames,
+        match_references,
+        read_frame,
+        read_reference,
+    )
+    from rtdenoise.shipped import sample_sequences
+
+    out = []
+    for folder in folders or sample_sequences():
+        paths = find_frames(folder)
+        refs = match_references(paths)
+        if not all(refs):
+            raise InputError(f"{folder}: every frame needs a reference ref_NNNN.exr for quality")
+        frames = [read_frame(p).buffers for p in paths]
+        out.append((Path(folder).name, frames, [read_reference(r) for r in refs]))
+    return out
+
+
+def _fmt(value: float, digits: int = 1) -> str:
+    return "-" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
+
+
+def _plot(path: Path, result: dict[str, Any], size: list[int]) -> None:
+    """PSNR vs ms per frame at `size`, one labelled point per contender (matplotlib)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        from rtdenoise.runtime.errors import InputError
+
+        raise InputError("--plot needs matplotlib: pip install 'rtdenoise[bench]'") from None
+    from rtdenoise.runtime.atomic import atomic_path
+
+    row = next(r for r in result["speed"] if r["size"] == size)
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
+    for name, q in result["quality"].items():
+        ms = row["summary"][name]["median_ms"]
+        lo, hi = row["summary"][name]["min_ms"], row["summary"][name]["max_ms"]
+        ax.errorbar(ms, q["mean"]["psnr"], xerr=[[ms - lo], [hi - ms]], fmt="o", capsize=3)
+        ax.annotate(name, (ms, q["mean"]["psnr"]), textcoords="offset points", xytext=(6, 4))
+    ax.axhline(result["noisy"]["mean"]["psnr"], color="gray", ls="--", lw=1, label="noisy input")
+    ax.set_xscale("log")
+    ax.set_xlabel(f"ms per frame at {size[1]}x{size[0]} (median, min-max)")
+    ax.set_ylabel("PSNR dB (tau-mapped, pooled)")
+    ax.set_title(f"quality vs time, {result['machine']}")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def compare_command(
+    models: Annotated[
+        list[str] | None,
+        typer.Argument(
+            metavar="MODEL",
+            help="Exported .onnx files, .pt checkpoints (exported in memory) or demo:<family>. "
+            "Default: every shipped demo.",
+            show_default=False,
+        ),
+    ] = None,
+    oidn: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="OIDN quality to include (repeatable): high, balanced, fast; 'none' for no "
+            "OIDN. Default: high and fast. Needs the [bench] extra (pyoidn).",
+        ),
+    ] = None,
+    size: Annotated[
+        list[str] | None,
+        typer.Option(help="Frame size WIDTHxHEIGHT (repeatable). Default: 320x240, 720p, 1080p."),
+    ] = None,
+    repeats: Annotated[int, typer.Option(min=1, help="Timed frames per contender and size.")] = 5,
+    sequence: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="Sequence folder with references for quality (repeatable). "
+            "Default: the bundled sample sequences."
+        ),
+    ] = None,
+    portable: Annotated[
+        bool, typer.Option("--portable", help="Also time each model on ORT's portable path.")
+    ] = False,
+    threads: Annotated[
+        int | None,
+        typer.Option(min=1, help="Threads for ONNX Runtime and the fast kernels (default: all)."),
+    ] = None,
+    json_path: Annotated[
+        Path | None, typer.Option("--json", help="Write every number here (JSON).")
+    ] = None,
+    plot: Annotated[
+        Path | None,
+        typer.Option(help="Write a PNG of PSNR vs ms per frame (at 720p if timed) here."),
+    ] = None,
+) -> None:
+    """Compare denoisers on the same frames: exported models on ONNX Runtime (fast kernels)
+    and Intel Open Image Denoise (RT filter, HDR, albedo + normal).
+
+    Speed: interleaved rounds (A B C A B C ...) after a warm-up round, median and min-max of
+    REPEATS frames per size, and ns per pixel; models carry their state, OIDN is per frame.
+    Quality: PSNR (tau-mapped, pooled), SSIM and TRMAE on sequences with references.
+    """
+    import platform
+
+    from rtdenoise.runtime import compare
+    from rtdenoise.runtime.denoiser import Denoiser
+    from rtdenoise.shipped import MODELS_DIR
+
+    with user_errors(extra="bench"):
+        sizes = [parse_size(s)[::-1] for s in (size or DEFAULT_SIZES)]  # (H, W)
+        qualities = [q for q in (oidn or ["high", "fast"]) if q != "none"]
+        specs = models or [f"demo:{p.stem}" for p in sorted(MODELS_DIR.glob("*.onnx"))]
+        if threads:
+            import numba
+
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        contenders = []
+        for spec in specs:
+            source = _onnx_source(spec)
+            for fast in (True, False) if portable else (True,):
+                label = spec + ("" if fast else " (portable)")
+                den = Denoiser(source, fast_kernels=fast, threads=threads)
+                contenders.append(compare.model_contender(label, den))
+        contenders += [compare.oidn_contender(q) for q in qualities]
+        seqs = _sequences(list(sequence or []))
+        with console.status("comparing") as status:
+            say = lambda msg: status.update(f"comparing: {msg}")  # noqa: E731
+            speed = compare.speed(contenders, sizes, repeats=repeats, progress=say)
+            quality = compare.quality(contenders, seqs, progress=say)
+            noisy = compare.noisy_quality(seqs)
+        machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPUs"
+        result = {
+            "machine": machine,
+            "threads": threads,
+            "repeats": repeats,
+            "sequences": [s[0] for s in seqs],
+            "speed": speed,
+            "quality": quality,
+            "noisy": noisy,
+        }
+        _print(result)
+        if json_path is not None:
+            write_json(json_path, result)
+        if plot is not None:
+            timed = [r["size"] for r in speed]
+            _plot(plot, result, [720, 1280] if [720, 1280] in timed else timed[-1])
+
+
+def _print(result: dict[str, Any]) -> None:
+    """Two tables: ms per frame (median, min-max) per size; ns per pixel and quality."""
+    sizes = [f"{w}x{h}" for h, w in (row["size"] for row in result["speed"])]
+    times = Table(title=f"ms per frame, median (min-max); {result['machine']}")
+    per_px = Table(title="ns per pixel (median) and quality on the sequences")
+    times.add_column("denoiser")
+    per_px.add_column("denoiser")
+    for label in sizes:
+        times.add_column(label, justify="right")
+        per_px.add_column(label, justify="right")
+    for label in ("PSNR dB", "SSIM", "TRMAE"):
+        per_px.add_column(label, justify="right")
+    for name, q in result["quality"].items():
+        rows = [row["summary"][name] for row in result["speed"]]
+        times.add_row(
+            name,
+            *(f"{_fmt(s['median_ms'])} ({_fmt(s['min_ms'])}-{_fmt(s['max_ms'])})" for s in rows),
+        )
+        m = q["mean"]
+        per_px.add_row(
+            name,
+            *(_fmt(s["ns_per_pixel"], 0) for s in rows),
+            _fmt(m["psnr"], 2),
+            _fmt(m["ssim"], 4),
+            _fmt(m["trmae"], 4),
+        )
+    n = result["noisy"]["mean"]
+    per_px.add_row(
+        "noisy input",
+        *[""] * len(sizes),
+        _fmt(n["psnr"], 2),
+        _fmt(n["ssim"], 4),
+        _fmt(n["trmae"], 4),
+    )
+    console.print(times)
+    console.print(per_px)

@@ -1,0 +1,199 @@
+"""Per-stage time of one frame, PyTorch eager vs ONNX Runtime (fast and portable), in one run.
+
+A model whose `forward` marks its stages with `models.profiling.stage` (crossreg: regression,
+reprojection, unet, filter, backward, adam) is timed in PyTorch by the wall time of each stage
+(`models.profiling.timed_stages`). In ONNX Runtime the session profiler times every node,
+and each node is assigned to a stage from the graph alone:
+
+- `regression`, `filter`: the custom op node of the stage (STAGE_OF_OP);
+- `backward + adam`: the nodes only the learned state needs: ancestors of the state outputs that
+  `rtdenoise.online` names (parameters, moments, step) that are not ancestors of `output` or of
+  any other output (the gradient and the optimiser step);
+- `unet`: the remaining nodes downstream of the graph's first Conv and upstream of the next
+  custom op node (the network and its output transforms);
+- `other`: the rest (reprojection, blending, loss, glue).
+
+On the portable path ORT inlines the custom ops' function bodies under generated names, so only
+its total per frame is reported.
+
+Medians over `repeats` frames after one warm-up frame, state fed back as in production.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from collections import defaultdict
+from collections.abc import Callable
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+import torch
+
+from rtdenoise.models.base import DenoiserModel
+from rtdenoise.models.frame_loop import FrameLoop
+from rtdenoise.models.profiling import timed_stages
+from rtdenoise.runtime import fastops
+from rtdenoise.runtime.contract import RESET, contract_from_session
+
+from .validate import synthetic_frames
+
+STAGES = ("regression", "unet", "filter", "backward + adam", "other")
+STAGE_OF_OP = {"CrossRegression": "regression", "CrossBilateralFilter": "filter"}
+TORCH_STAGE = {  # torch.profiler range -> reported stage
+    "regression": "regression",
+    "unet": "unet",
+    "filter": "filter",
+    "backward": "backward + adam",
+    "adam": "backward + adam",
+}
+
+
+def _ancestors(graph: onnx.GraphProto, names: set[str]) -> set[int]:
+    """Indices of the nodes that the tensors `names` depend on."""
+    producer = {out: i for i, node in enumerate(graph.node) for out in node.output}
+    seen: set[int] = set()
+    todo = [producer[n] for n in names if n in producer]
+    while todo:
+        i = todo.pop()
+        if i in seen:
+            continue
+        seen.add(i)
+        todo.extend(producer[x] for x in graph.node[i].input if x in producer)
+    return seen
+
+
+def node_stages(model: onnx.ModelProto, online: dict | None) -> dict[str, str]:
+    """{node name: stage} for every node of the main graph (see the module docstring)."""
+    graph = model.graph
+    outputs = [o.name for o in graph.output]
+    learned = {
+        f"state_next.{n}"
+        for n in [(online or {}).get("parameters"), (online or {}).get("step")]
+        + list((online or {}).get("moments", []))
+        if n
+    }
+    backward = _ancestors(graph, learned) - _ancestors(graph, set(outputs) - learned)
+    order = list(range(len(graph.node)))
+    first_conv = next((i for i in order if graph.node[i].op_type == "Conv"), None)
+    unet: set[int] = set()
+    if first_conv is not None:
+        custom = [i for i in order if i > first_conv and graph.node[i].domain == "rtdenoise"]
+        if custom:
+            up = _ancestors(graph, set(graph.node[custom[0]].input))
+            down, made = {first_conv}, set(graph.node[first_conv].output)
+            for i in order[first_conv + 1 :]:  # topological order: one forward pass
+                if any(x in made for x in graph.node[i].input):
+                    down.add(i)
+                    made.update(graph.node[i].output)
+            unet = (up & down) - backward
+    stages = {}
+    for i, node in enumerate(graph.node):
+        if node.domain == "rtdenoise":
+            stages[node.name] = STAGE_OF_OP.get(node.op_type, node.op_type)
+        elif i in backward:
+            stages[node.name] = "backward + adam"
+        elif i in unet:
+            stages[node.name] = "unet"
+        else:
+            stages[node.name] = "other"
+    return stages
+
+
+def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tuple[dict, float]:
+    """(median ms per stage, median ms per frame) of ONNX Runtime over frames[1:]."""
+    proto = onnx.load_from_string(onnx_bytes)
+    for i, node in enumerate(proto.graph.node):  # the profiler reports nodes by name
+        node.name = node.name or f"node_{i}"
+    so = ort.SessionOptions()
+    if threads:
+        so.intra_op_num_threads = threads
+    if fast:
+        fastops.register_fast_kernels(so)
+    so.enable_profiling = True
+    so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "ort")
+    session = ort.InferenceSession(
+        proto.SerializeToString(), so, providers=["CPUExecutionProvider"]
+    )
+    contract = contract_from_session(session)
+    stage_of = node_stages(proto, contract.online)
+    h, w = frames[0][contract.buffer_names[0]].shape[-2:]
+    state = {s.name: np.zeros(s.shape(h, w), np.float32) for s in contract.state}
+    walls = []
+    for k, frame in enumerate(frames):
+        feed = {name: frame[name][None] for name in contract.buffer_names}
+        feed[RESET] = np.array(1.0 if k == 0 else 0.0, np.float32)
+        feed.update({s.input_name: state[s.name] for s in contract.state})
+        t0 = time.perf_counter()
+        outs = session.run(None, feed)
+        walls.append((time.perf_counter() - t0) * 1e3)
+        named = dict(zip([o.name for o in session.get_outputs()], outs, strict=True))
+        state = {s.name: named[s.output_name] for s in contract.state}
+    with open(session.end_profiling()) as fh:
+        events = json.load(fh)
+    runs = sorted((e["ts"], e["ts"] + e["dur"]) for e in events if e.get("name") == "model_run")
+    per_run: list[dict[str, float]] = [defaultdict(float) for _ in runs]
+    for e in events:
+        if e.get("cat") != "Node" or not e["name"].endswith("_kernel_time"):
+            continue
+        node = e["name"][: -len("_kernel_time")]
+        for r, (start, end) in enumerate(runs):
+            if start <= e["ts"] <= end:
+                per_run[r][stage_of.get(node, "other")] += e["dur"] / 1e3
+                break
+    timed = per_run[1:] or per_run
+    return {s: float(np.median([run.get(s, 0.0) for run in timed])) for s in STAGES}, float(
+        np.median(walls[1:] or walls)
+    )
+
+
+def _torch_times(model: DenoiserModel, frames) -> tuple[dict, float]:
+    """(median ms per stage, median ms per frame) of PyTorch eager over frames[1:]."""
+    loop = FrameLoop(model)
+    per_frame, walls = [], []
+    with torch.no_grad():
+        for frame in frames:
+            with timed_stages() as times:
+                t0 = time.perf_counter()
+                loop(frame)
+                walls.append((time.perf_counter() - t0) * 1e3)
+            stages: dict[str, float] = defaultdict(float)
+            for name, ms in times.items():
+                if name in TORCH_STAGE:
+                    stages[TORCH_STAGE[name]] += ms
+            per_frame.append(stages)
+    timed, wall = per_frame[1:] or per_frame, float(np.median(walls[1:] or walls))
+    out = {s: float(np.median([f.get(s, 0.0) for f in timed])) for s in STAGES[:-1]}
+    rest = [w - sum(f.values()) for w, f in zip(walls[1:] or walls, timed, strict=True)]
+    out["other"] = float(np.median(rest))
+    return out, wall
+
+
+def benchmark_stages(
+    model: DenoiserModel,
+    onnx_bytes: bytes,
+    size: tuple[int, int] = (720, 1280),
+    repeats: int = 3,
+    threads: int | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict:
+    """{path: {"stages": {stage: ms}, "total": ms}} for torch, ort_fast and ort_portable."""
+    say = progress or (lambda _msg: None)
+    if threads:
+        torch.set_num_threads(threads)
+    frames = synthetic_frames(model.inputs, repeats + 1, *size)
+    result = {}
+    for path, run in (
+        ("torch", lambda: _torch_times(model.eval(), frames)),
+        ("ort_fast", lambda: _ort_times(onnx_bytes, frames, True, threads)),
+        ("ort_portable", lambda: _ort_times(onnx_bytes, frames, False, threads)),
+    ):
+        say(path)
+        stages, total = run()
+        # ORT inlines the portable function bodies under generated node names (and reports
+        # their Loop bodies' nodes as well): only its total is meaningful
+        result[path] = {"stages": stages if path != "ort_portable" else {}, "total": total}
+    return result

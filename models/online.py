@@ -1,0 +1,199 @@
+"""Online learning inside the model's own step: what a family that learns while it runs shares.
+
+A model that learns online (Choi24) keeps its network weights theta, the optimiser moments and
+the step count as contract state, and its `forward` does the whole frame: the forward pass
+(displayed: it uses theta_{t-1}), the self-supervised loss, `torch.autograd.grad` and one
+optimiser step, returning theta_t as next state. Nothing flows between frames but the state.
+
+- `ParameterLayout`: a module's parameters <-> one flat vector (the `theta` state);
+- `adam_step`: Adam (Kingma & Ba 2015, Algorithm 1, the form of torch.optim.Adam) as elementwise
+  ops, gated by a 0/1 `learn` value (the host's freeze switch);
+- `traced_step`: the step traced by `make_fx` into aten ops (autograd's backward included),
+  which `torch.onnx.export` then converts: `torch.export` cannot trace `autograd.grad` itself
+  (research-notes, "Training inside ONNX Runtime"). Two backward ops have no ONNX translation
+  and are decomposed here into forward ops: `convolution_backward` (input gradient by a
+  transposed convolution, weight gradient by a convolution of the batch-transposed tensors;
+  the 1x1 stride-2 transposed convolution by a strided slice and a 1x1 convolution) and
+  `max_pool2d_with_indices_backward` (ScatterElements-add of the gradient at the indices).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from .ops.export_mode import exporting
+
+aten = torch.ops.aten
+
+
+@dataclass(frozen=True)
+class ParameterLayout:
+    """The order and shapes of a module's parameters inside the flat vector theta."""
+
+    names: tuple[str, ...]
+    shapes: tuple[tuple[int, ...], ...]
+
+    @classmethod
+    def of(cls, module: nn.Module) -> ParameterLayout:
+        named = list(module.named_parameters())
+        return cls(tuple(n for n, _ in named), tuple(tuple(p.shape) for _, p in named))
+
+    @property
+    def sizes(self) -> list[int]:
+        out = []
+        for shape in self.shapes:
+            size = 1
+            for d in shape:
+                size *= d
+            out.append(size)
+        return out
+
+    @property
+    def size(self) -> int:
+        return sum(self.sizes)
+
+    def flatten(self, module: nn.Module) -> torch.Tensor:
+        """theta (P,) from the module's parameters, in layout order (differentiable)."""
+        params = dict(module.named_parameters())
+        return torch.cat([params[n].reshape(-1) for n in self.names])
+
+    def unflatten(self, theta: torch.Tensor) -> dict[str, torch.Tensor]:
+        """{name: view of theta} for torch.func.functional_call."""
+        parts = torch.split(theta, self.sizes)
+        return {n: p.view(s) for n, p, s in zip(self.names, parts, self.shapes, strict=True)}
+
+    def to_json(self) -> list[dict]:
+        return [{"name": n, "shape": list(s)} for n, s in zip(self.names, self.shapes, strict=True)]
+
+
+@dataclass(frozen=True)
+class Adam:
+    """Adam's constants (Kingma & Ba 2015)."""
+
+    lr: float = 1e-3
+    beta1: float = 0.9
+    beta2: float = 0.999
+    eps: float = 1e-7
+
+
+def adam_step(
+    theta: torch.Tensor,
+    grad: torch.Tensor,
+    m: torch.Tensor,
+    v: torch.Tensor,
+    t: torch.Tensor,
+    learn: torch.Tensor,
+    adam: Adam,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(theta', m', v', t') after one Adam step (Kingma & Ba Alg. 1; t counts from 0), or the
+    inputs unchanged where `learn` <= 0.5. All elementwise: exports to standard ONNX ops."""
+    t1 = t + 1.0
+    m1 = adam.beta1 * m + (1.0 - adam.beta1) * grad
+    v1 = adam.beta2 * v + (1.0 - adam.beta2) * grad * grad
+    m_hat = m1 / (1.0 - torch.pow(adam.beta1, t1))
+    v_hat = v1 / (1.0 - torch.pow(adam.beta2, t1))
+    stepped = theta - adam.lr * m_hat / (torch.sqrt(v_hat) + adam.eps)
+    gate = learn > 0.5
+    return (
+        torch.where(gate, stepped, theta),
+        torch.where(gate, m1, m),
+        torch.where(gate, v1, v),
+        torch.where(gate, t1, t),
+    )
+
+
+# -- tracing the step ---------------------------------------------------------------------
+
+
+def _convolution_backward(
+    grad_out: torch.Tensor,
+    inp: torch.Tensor,
+    weight: torch.Tensor,
+    bias_sizes: Sequence[int] | None,
+    stride: Sequence[int],
+    padding: Sequence[int],
+    dilation: Sequence[int],
+    transposed: bool,
+    output_padding: Sequence[int],
+    groups: int,
+    output_mask: Sequence[bool],
+) -> tuple[torch.Tensor | None, torch.Tensor | None, torch.Tensor | None]:
+    """aten.convolution_backward in forward convolutions (2-D, groups 1, no dilation):
+    stride-1 convolutions, and 1x1 transposed convolutions without padding (any stride)."""
+    if groups != 1 or any(d != 1 for d in dilation) or inp.dim() != 4:
+        raise NotImplementedError("online export: only 2-D, ungrouped, undilated convolutions")
+    grad_in = grad_w = grad_b = None
+    if not transposed:
+        if any(s != 1 for s in stride):
+            raise NotImplementedError("online export: strided convolutions are not supported")
+        if output_mask[0]:
+            grad_in = F.conv_transpose2d(grad_out, weight, padding=list(padding))
+        if output_mask[1]:
+            grad_w = F.conv2d(
+                inp.transpose(0, 1), grad_out.transpose(0, 1), padding=list(padding)
+            ).transpose(0, 1)
+    else:
+        if tuple(weight.shape[2:]) != (1, 1) or any(p != 0 for p in padding):
+            raise NotImplementedError("online export: only 1x1 transposed convolutions")
+        sy, sx = stride
+        picked = grad_out[:, :, ::sy, ::sx]  # where the inputs landed
+        if output_mask[0]:
+            grad_in = F.conv2d(picked, weight)
+        if output_mask[1]:
+            grad_w = F.conv2d(inp.transpose(0, 1), picked.transpose(0, 1))
+    if output_mask[2]:
+        grad_b = grad_out.sum(dim=(0, 2, 3))
+    return grad_in, grad_w, grad_b
+
+
+def _max_pool2d_backward(
+    grad_out: torch.Tensor,
+    inp: torch.Tensor,
+    kernel_size,
+    stride,
+    padding,
+    dilation,
+    ceil_mode,
+    indices: torch.Tensor,
+) -> torch.Tensor:
+    """aten.max_pool2d_with_indices_backward: add each gradient at its argmax (plane-flat index)."""
+    n, c, h, w = inp.shape
+    flat = grad_out.new_zeros(n, c, h * w)
+    return flat.scatter_add(2, indices.flatten(2), grad_out.flatten(2)).view(n, c, h, w)
+
+
+DECOMPOSITIONS = {
+    aten.convolution_backward.default: _convolution_backward,
+    aten.max_pool2d_with_indices_backward.default: _max_pool2d_backward,
+}
+
+
+class TracedStep(nn.Module):
+    """A traced step behind the contract's `forward(*args)` signature."""
+
+    def __init__(self, graph_module: nn.Module) -> None:
+        super().__init__()
+        self.graph_module = graph_module
+
+    def forward(self, *args: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        return tuple(self.graph_module(*args))
+
+
+def traced_step(module: nn.Module, example_args: tuple) -> TracedStep:
+    """`module(*example_args)` traced into aten ops with symbolic shapes (autograd's backward
+    and every custom op node included), for `torch.onnx.export`."""
+    from torch.fx.experimental.proxy_tensor import make_fx
+
+    with exporting():
+        graph_module = make_fx(
+            module,
+            decomposition_table=DECOMPOSITIONS,
+            tracing_mode="symbolic",
+            _allow_non_fake_inputs=True,  # the module's weights: theta at initialisation
+        )(*example_args)
+    return TracedStep(graph_module)

@@ -1,0 +1,47 @@
+"""Reproject in torch form; the op is defined in rtdenoise.ops.reproject."""
+
+from __future__ import annotations
+
+import torch
+
+from .torch_op import torch_op
+
+
+def bilinear_taps(motion: torch.Tensor) -> tuple[torch.Tensor, ...]:
+    """For every pixel of (N, 2, H, W) motion: the flat indices of its four taps (N, H*W each,
+    nw, ne, sw, se) in an H*W plane and the weights (wx, wy) of the clamped source position."""
+    n, _, h, w = motion.shape
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
+    px = torch.clamp(xs + motion[:, 0], 0.0, w - 1.0)  # previous position, in the image
+    py = torch.clamp(ys + motion[:, 1], 0.0, h - 1.0)
+    x0, y0 = torch.floor(px), torch.floor(py)
+    wx, wy = px - x0, py - y0
+    x0i, y0i = x0.long(), y0.long()
+    x1i, y1i = torch.clamp(x0i + 1, max=w - 1), torch.clamp(y0i + 1, max=h - 1)
+    taps = [
+        (yi * w + xi).reshape(n, h * w)
+        for yi, xi in ((y0i, x0i), (y0i, x1i), (y1i, x0i), (y1i, x1i))
+    ]
+    return (*taps, wx, wy)
+
+
+@torch_op("Reproject")
+def reproject(previous: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
+    """Bilinearly sample `previous` (N, C, H, W) at current + motion, clamped to the image.
+
+    Differentiable tensor-op form (the numeric reference): four gathers weighted
+    nw (1 - wy)(1 - wx) + ne (1 - wy) wx + sw wy (1 - wx) + se wy wx, summed in that order,
+    the arithmetic the function body and the fast kernel repeat step by step.
+    """
+    n, c, h, w = previous.shape
+    *taps, wx, wy = bilinear_taps(motion)
+    flat = previous.reshape(n, c, h * w)
+
+    def tap(index: torch.Tensor) -> torch.Tensor:
+        return torch.gather(flat, 2, index.unsqueeze(1).expand(n, c, h * w)).reshape(n, c, h, w)
+
+    ex, ey = (1.0 - wx).unsqueeze(1), (1.0 - wy).unsqueeze(1)
+    wx, wy = wx.unsqueeze(1), wy.unsqueeze(1)
+    nw, ne, sw, se = (tap(t) for t in taps)
+    return nw * (ey * ex) + ne * (ey * wx) + sw * (wy * ex) + se * (wy * wx)

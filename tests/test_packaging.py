@@ -1,0 +1,66 @@
+"""The packaging facts the README promises (pyproject.toml): a base install without a deep
+learning framework, extras by role, the fast kernels only where their wheels exist."""
+
+from __future__ import annotations
+
+import sys
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+from packaging.requirements import Requirement
+
+import rtdenoise
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+ROOT = Path(__file__).resolve().parents[1]
+PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+BASE = {Requirement(r).name.lower(): Requirement(r) for r in PROJECT["dependencies"]}
+
+
+def test_installed_version_is_the_package_version():
+    assert metadata.version("rtdenoise") == rtdenoise.__version__
+
+
+def test_base_install_has_no_framework_and_extras_by_role():
+    """The base dependencies are the runtime's; torch, onnx, mitsuba come with extras."""
+    assert set(BASE) == {
+        "numpy", "onnxruntime", "openexr", "typer", "rich", "tomli", "numba",
+        "onnxruntime-extensions",
+    }  # fmt: skip
+    extras = PROJECT["optional-dependencies"]
+    assert set(extras) == {"export", "train", "data", "bench", "all", "test"}
+    names = {e: {Requirement(r).name for r in reqs} for e, reqs in extras.items()}
+    assert {"torch", "onnx", "onnxscript"} <= names["export"]
+    assert names["train"] == {"rtdenoise"} and names["data"] == {"mitsuba"}
+    torch = next(Requirement(r) for r in extras["export"] if r.startswith("torch"))
+    assert all(s.operator == ">=" for s in torch.specifier)  # a newer torch is never downgraded
+    assert isinstance(PROJECT["license"], str)  # SPDX expression, not the deprecated table
+    assert "/demo-out/" in (ROOT / ".gitignore").read_text().splitlines()
+
+
+ENV = {"python_version": "3.11", "sys_platform": "linux", "platform_machine": "x86_64"}
+
+
+@pytest.mark.parametrize(
+    "env, fast",
+    [
+        ({}, True),
+        ({"platform_machine": "aarch64"}, True),
+        ({"python_version": "3.13", "sys_platform": "win32", "platform_machine": "AMD64"}, True),
+        ({"sys_platform": "darwin", "platform_machine": "arm64"}, True),
+        ({"sys_platform": "darwin", "platform_machine": "x86_64"}, False),  # no numba wheel
+        ({"sys_platform": "win32", "platform_machine": "ARM64"}, False),  # no ortx wheel
+        ({"python_version": "3.14"}, False),  # no ortx wheel
+        ({"platform_machine": "armv7l"}, False),
+    ],
+)
+def test_fast_kernels_only_where_both_have_wheels(env, fast):
+    for name in ("numba", "onnxruntime-extensions"):
+        assert BASE[name].marker.evaluate(ENV | env) is fast, name
+    assert BASE["tomli"].marker.evaluate(ENV | {"python_version": "3.10"})
+    assert not BASE["tomli"].marker.evaluate(ENV)
