@@ -165,3 +165,29 @@ def test_renderer_writes_independent_samples(tmp_path):
     assert not np.allclose(s[0, :3], s[1, :3])  # independent samples
     n = np.linalg.norm(s[:, 6:9], axis=1)
     assert np.all((np.abs(n - 1) < 2e-3) | (n == 0)) and (s[:, 9] > 0).all()
+
+
+def test_sequence_plan_reads_samples_for_a_per_sample_model(tmp_path):
+    """`plan_sequence` / `iter_sequence` with a model's buffers: the first frame's sample
+    layers in every frame (a frame without them is refused by name), else S = 1."""
+    from rtdenoise.runtime.sequence import iter_sequence
+    from rtdenoise.shipped import sample_sequences
+
+    rng = np.random.default_rng(4)
+    expected = []
+    for t in range(2):
+        channels, samples = _frame_channels(rng, 2)
+        write_exr(tmp_path / f"frame_{t:04d}.exr", channels, half=False)
+        expected.append(samples)
+    frames = list(iter_sequence(tmp_path, buffers=("samples", "motion"), sample_features=FEATURES))
+    assert [sorted(f.buffers) for f in frames] == [["color", "motion", "samples"]] * 2
+    for frame, samples in zip(frames, expected, strict=True):
+        np.testing.assert_array_equal(frame.buffers["samples"], samples)
+    channels, _ = _frame_channels(rng, 1)  # a third frame with one sample only
+    write_exr(tmp_path / "frame_0002.exr", channels, half=False)
+    with pytest.raises(InputError, match="frame_0002.exr: missing channel sample1"):
+        list(iter_sequence(tmp_path, buffers=("samples", "motion"), sample_features=FEATURES))
+    committed = sample_sequences()[0]  # pixel buffers only: S = 1 from the pixel means
+    frame = next(iter_sequence(committed, buffers=("samples", "motion")))
+    assert frame.buffers["samples"].shape == (1, 10, 64, 64)
+    np.testing.assert_array_equal(frame.buffers["samples"][0, :3], frame.buffers["color"])
