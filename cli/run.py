@@ -25,6 +25,7 @@ from rtdenoise.cli.common import (
     warn,
     write_json,
 )
+from rtdenoise.runtime.atomic import check_writable
 from rtdenoise.runtime.backend import Backend, load_backend
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
@@ -61,6 +62,8 @@ def run_with_progress(
     half: bool,
     preview: bool,
     err: Console,
+    overwrite: bool = False,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """`run_sequence` with a progress bar on a terminal and warnings on stderr."""
     progress = Progress(
@@ -87,6 +90,8 @@ def run_with_progress(
             overrides,
             half=half,
             preview=preview,
+            overwrite=overwrite,
+            resume=resume,
             on_frame=advance,
             on_warning=warn,
             reading=quiet_native_output,
@@ -119,10 +124,16 @@ def print_report(report: dict[str, Any], model: str, console: Console) -> None:
         if report["trmae"] is not None and np.isfinite(report["trmae"]):
             console.print(f"TRMAE ↓ {report['trmae']:.4f} (input {inp['trmae']:.4f})")
     t = report["timing_ms"]
+    where = f"{len(report['frames'])} frames {report['size'][1]}x{report['size'][0]} -> " + str(
+        Path(report["frames"][0]["output"]).parent
+    )
+    kept = report.get("skipped", 0)
+    if t["denoise"] is None:
+        console.print(f"{where}: all kept from an earlier run (--resume)", soft_wrap=True)
+        return
     console.print(
-        f"{len(report['frames'])} frames {report['size'][1]}x{report['size'][0]} -> "
-        f"{Path(report['frames'][0]['output']).parent}; median per frame: read {t['read']:.1f} ms,"
-        f" denoise {t['denoise']:.1f} ms, write {t['write']:.1f} ms",
+        f"{where}{f' ({kept} kept from an earlier run)' if kept else ''}; median per frame: "
+        f"read {t['read']:.1f} ms, denoise {t['denoise']:.1f} ms, write {t['write']:.1f} ms",
         soft_wrap=True,
     )
 
@@ -254,6 +265,18 @@ def run(
         int | None,
         typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads (default: all)."),
     ] = None,
+    overwrite: Annotated[
+        bool,
+        typer.Option("--overwrite", help="Replace outputs that exist (default: refuse to start)."),
+    ] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            help="Keep the outputs that exist and denoise the other frames, re-running up to "
+            "16 frames before each to rebuild the temporal history.",
+        ),
+    ] = False,
     provider: Annotated[
         list[str] | None,
         typer.Option(
@@ -308,7 +331,10 @@ def run(
     `OUT/<same name>.exr` atomically (no partial files). With references (`ref_NNNN.exr`
     beside the frames, or --reference) prints PSNR / SSIM / SMAPE / relMSE of the output
     and of the noisy input, and TRMAE over the sequence. NaN/Inf input pixels are
-    replaced by 0 and reported.
+    replaced and reported; out-of-range values are clamped (docs/reliability.md). Existing
+    outputs are never replaced unless --overwrite; --resume continues an interrupted run.
+    A gap in the frame numbers resets the history. Ctrl-C stops after the frame being
+    written, leaving only complete files (exit 130).
 
     Metrics: PSNR and SSIM on tau-tonemapped images, tau(x) = (x / (1 + x))^(1/2.4);
     SMAPE and relMSE on linear radiance; the mean PSNR pools the error over all frames.
@@ -321,8 +347,19 @@ def run(
         overrides = parse_overrides(channel)
         lay = get_layout(layout)
         check_out_dir(output)
-        if metrics_json is not None and metrics_json.is_dir():
-            raise InputError(f"{metrics_json}: --metrics-json is a folder, expected a file path")
+        if overwrite and resume:
+            raise InputError("--overwrite and --resume exclude each other")
+        if metrics_json is not None:
+            if metrics_json.is_dir():
+                raise InputError(
+                    f"{metrics_json}: --metrics-json is a folder, expected a file path"
+                )
+            check_writable(metrics_json)  # now, not after every frame
+            if metrics_json.exists() and not (overwrite or resume):
+                raise InputError(
+                    f"{metrics_json}: exists; --overwrite replaces it (and existing outputs), "
+                    "--resume rewrites it for the resumed run"
+                )
         jobs, several = _jobs(list(inputs or []), output, reference, demo)
         backend = load_backend(
             model,
@@ -336,7 +373,15 @@ def run(
         reports = []
         for job in jobs:
             report = run_with_progress(
-                job, backend, lay, overrides, half=half, preview=preview, err=err
+                job,
+                backend,
+                lay,
+                overrides,
+                half=half,
+                preview=preview,
+                err=err,
+                overwrite=overwrite,
+                resume=resume,
             )
             report["online"] = online_summary(backend)
             print_report(report, model, out)

@@ -9,6 +9,7 @@ Writes are atomic (temp file in the same folder, then rename).
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
@@ -51,14 +52,25 @@ def save_checkpoint(
     return path
 
 
+_GLOBAL = re.compile(r"Unsupported global: GLOBAL ([\w.]+)")
+
+
 def _reason(exc: Exception) -> str:
-    """The informative line of a torch.load error (weights_only errors are long)."""
+    """The informative line of a torch.load error (weights_only errors are long and suggest
+    `weights_only=False`, which would run the file's code: never pass that advice on)."""
     text = str(exc)
+    found = _GLOBAL.search(text)
+    if found:
+        return (
+            f"it needs the Python object {found.group(1)}, refused: a checkpoint holds only "
+            "tensors and plain data"
+        )
     marker = "WeightsUnpickler error:"
     if marker in text:
         text = text.split(marker, 1)[1]
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
-    return lines[0].split(". Please")[0] if lines else type(exc).__name__
+    reason = lines[0].split(". Please")[0] if lines else type(exc).__name__
+    return "cannot unpickle it safely" if "weights_only" in reason else reason
 
 
 def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:

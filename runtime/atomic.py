@@ -1,10 +1,14 @@
 """Atomic file writes: a temp file beside the target, renamed over it only when complete.
 
-A crash or an error mid-write leaves the previous file (or nothing), never a partial one.
+A crash or an error mid-write leaves the previous file (or nothing), never a partial one; an
+error or Ctrl-C removes the temp file. A killed process (SIGKILL, power loss) leaves it:
+`temp_files_of` finds those of a target (`.<stem>.<random>.tmp<suffix>`), which `denoise-run`
+removes before writing that target again.
 """
 
 from __future__ import annotations
 
+import glob
 import os
 import tempfile
 from collections.abc import Iterator
@@ -22,7 +26,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{folder}: output folder is a file")
     folder.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=folder)
+    fd, tmp = tempfile.mkstemp(prefix=_prefix(path), suffix=_suffix(path), dir=folder)
     os.close(fd)
     try:
         yield Path(tmp)
@@ -45,7 +49,61 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     return write_bytes_atomic(path, text.encode("utf-8"))
 
 
+def _prefix(path: Path) -> str:
+    return f".{path.stem}."
+
+
+def _suffix(path: Path) -> str:
+    return f".tmp{path.suffix}"
+
+
+def temp_files_of(path: str | os.PathLike) -> list[Path]:
+    """Temp files `atomic_path` left beside `path` when its process was killed mid-write."""
+    path = Path(path)
+    prefix, suffix = _prefix(path), _suffix(path)
+    if not path.parent.is_dir():
+        return []
+    return sorted(
+        p
+        for p in path.parent.glob(f"{glob.escape(prefix)}*{glob.escape(suffix)}")
+        if len(p.name) == len(prefix) + 8 + len(suffix) and p.is_file()  # mkstemp: 8 chars
+    )
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """InputError now, before any work, if a file cannot be written at `path` (a folder is in
+    the way, no permission); its missing parent folders would be created."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a file path")
+    folder = path.parent
+    existing = folder
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise InputError(f"{existing}: is a file, not a folder (writing {path})")
+    if existing != folder:
+        if not os.access(existing, os.W_OK | os.X_OK):
+            raise InputError(f"{path}: cannot create folder {folder}: {existing} is not writable")
+        return
+    try:
+        fd, probe = tempfile.mkstemp(prefix=_prefix(path), suffix=_suffix(path), dir=folder)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write in {folder} ({exc.strerror})") from exc
+    os.close(fd)
+    os.unlink(probe)
+
+
+_UMASK: int | None = None
+
+
 def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+    """The process umask, read once (reading it means setting it: not thread-safe)."""
+    global _UMASK
+    if _UMASK is None:
+        _UMASK = os.umask(0)
+        os.umask(_UMASK)
+    return _UMASK
+
+
+_umask()

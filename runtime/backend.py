@@ -20,7 +20,8 @@ class Backend(Protocol):
     """One stateful denoiser: frames in order, `reset()` at a cut.
 
     A backend may also list `required_buffers` (names): `run_sequence` then reads only
-    those (and `color`); without it, every buffer the layout finds.
+    those (and `color`); without it, every buffer the layout finds. One with `last_guard`
+    (a `runtime.guard.GuardReport`, as `Denoiser` has) gets what it reports warned per frame.
     """
 
     def process(

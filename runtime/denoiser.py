@@ -1,10 +1,13 @@
 """The stateful executor: one ONNX Runtime session driving any contract-v1 model
 (docs/architecture.md, "Runtime"; docs/contract.md).
 
-Per frame: validate the buffers (names, shapes; NaN/Inf replaced by 0 and counted),
+Per frame: validate the buffers (names, shapes), pass them through the input guard
+(`runtime/guard.py`: NaN/Inf replaced, ranges clamped, colour outliers removed, all counted),
 replicate-pad H, W to the model's `pad_multiple`, run, feed `state_next.*` back as
-`state.*`, crop the output. State is zero-filled and `reset` = 1 on the first frame,
-after `reset()` and when the resolution changes.
+`state.*`, crop the output (NaN/Inf in it replaced by 0 and counted). State is zero-filled
+and `reset` = 1 on the first frame, after `reset()`, when the resolution changes, on a frame
+whose guide buffers are missing (zero everywhere) and on the frame after it or after a
+non-finite output (docs/reliability.md).
 
 State lives in two ping-pong buffers per tensor bound through ONNX Runtime's IO
 binding: frame t reads buffer A and writes buffer B, frame t+1 the reverse. With a
@@ -15,18 +18,22 @@ Buffers come planar, (C, H, W) (or batched, (1, C, H, W)), or interleaved as a r
 them, (H, W, C) with an optional alpha channel that is ignored ((H, W) for one channel), in
 float32 or float16; the output follows the layout of `color`, or fills the caller's `out`.
 
-A caller whose buffers are already free of NaN/Inf (a `Frame` from `read_frame`, which
-replaced and counted them) says so with `process(..., assume_finite=True)`, which skips the
-scan; the default scans every frame.
+Fast kernels run as Python custom ops inside `session.run`; an exception there would abort
+the process, so the run is wrapped in `fastops.raise_kernel_errors()` (the kernel's error is
+raised after the run) and in `deferred_signals()` (Ctrl-C is raised after the run).
+One frame at a time: `process` and `reset` hold a lock, so an instance shared by threads
+serialises their calls (docs/reliability.md, "Threads").
 """
 
 from __future__ import annotations
 
 import importlib
 import os
+import threading
 import time
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +51,9 @@ from .contract import (
     contract_from_session,
 )
 from .errors import InputError
+from .external_data import check_external_data
+from .guard import GuardReport, GuardTotals, guard_buffers, replace_nonfinite
+from .interrupts import deferred_signals
 
 ModelSource = str | os.PathLike | bytes
 Provider = str | tuple[str, dict[str, Any]]
@@ -111,8 +121,9 @@ def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provid
     return resolved
 
 
-def _register_fast_kernels(options: ort.SessionOptions) -> bool:
-    """Register the numba kernels of the rtdenoise custom ops; False (with a warning) if absent."""
+def _register_fast_kernels(options: ort.SessionOptions) -> Any:
+    """Register the numba kernels of the rtdenoise custom ops: the `fastops` module, or None
+    (with a warning) if absent."""
     try:
         fastops = importlib.import_module(".fastops", __package__)
     except ModuleNotFoundError as exc:
@@ -124,10 +135,10 @@ def _register_fast_kernels(options: ort.SessionOptions) -> bool:
                 RuntimeWarning,
                 stacklevel=3,
             )
-            return False
+            return None
         raise
     fastops.register_fast_kernels(options)
-    return True
+    return fastops
 
 
 def _count_nonfinite(a: np.ndarray) -> int:
@@ -252,6 +263,7 @@ class Denoiser:
         else:
             path = resolve_model(model)
             self.source, payload = str(path), str(path)
+        check_external_data(payload if isinstance(payload, bytes) else path)  # inside its folder
         options = ort.SessionOptions()
         # Warnings at load are about graph internals (e.g. run-time option initializers that
         # are graph inputs by design: "will not be treated as constant"); errors still show.
@@ -260,7 +272,8 @@ class Denoiser:
             if threads < 1:
                 raise InputError(f"threads must be >= 1, got {threads}")
             options.intra_op_num_threads = threads
-        self.fast_kernels = _register_fast_kernels(options) if fast_kernels else False
+        self._fastops = _register_fast_kernels(options) if fast_kernels else None
+        self.fast_kernels = self._fastops is not None
         wanted = resolve_providers(providers)
         try:
             self._session = ort.InferenceSession(payload, options, providers=wanted)
@@ -281,9 +294,11 @@ class Denoiser:
         self._binding = self._session.io_binding() if io_binding else None
         self._static_hw = self._graph_static_hw()
 
-        self.last_nonfinite = 0
+        self.last_guard = GuardReport()  # what the input guard did to the last frame
+        self.guard_totals = GuardTotals()
+        self.last_nonfinite = 0  # pixels of the last frame with NaN/Inf in some buffer
         self.total_nonfinite = 0
-        self.last_nonfinite_by_buffer: dict[str, int] = {}
+        self.last_nonfinite_by_buffer: dict[str, int] = {}  # pixels per buffer
         self.last_state_nonfinite = 0
         self.total_state_nonfinite = 0
         self.last_run_ms = 0.0
@@ -295,6 +310,8 @@ class Denoiser:
         self._state: dict[str, np.ndarray] = {}  # session.run state
         self._frame_index = 0
         self._pending_reset = True
+        self._reset_reason = "first frame"
+        self._lock = threading.Lock()  # one frame at a time (docs/reliability.md, "Threads")
         if learn_every < 1:
             raise InputError(f"learn_every must be >= 1, got {learn_every}")
         self.learn = learn
@@ -382,7 +399,13 @@ class Denoiser:
 
     def reset(self) -> None:
         """Forget the history: the next frame starts from zero state with reset = 1."""
-        self._pending_reset = True
+        with self._lock:
+            self._restart("reset()")
+
+    def _restart(self, reason: str) -> None:
+        """Start a new history at the next frame, noting why (the first reason wins)."""
+        if not self._pending_reset:
+            self._pending_reset, self._reset_reason = True, reason
 
     def process(
         self,
@@ -398,23 +421,42 @@ class Denoiser:
         or float16 (other real types are converted).
 
         Extra buffers are ignored. `reset=True` marks a camera cut. Returns the frame, linear
-        HDR float32, (3, H, W), or (H, W, 3) when `color` is interleaved; or `out`, filled.
-        NaN/Inf input values are replaced by 0 (in a copy) and counted in `last_nonfinite`.
-        assume_finite: the caller guarantees the buffers hold no NaN/Inf (e.g. they come from
-            `read_frame`, which already replaced and counted them): skips that scan, one pass
-            over every buffer. Non-finite values given with it reach the model.
+        HDR float32, (3, H, W), or (H, W, 3) when `color` is interleaved; or `out`, filled;
+        always finite. Every buffer passes the input guard first (`rtdenoise.runtime.guard`:
+        NaN/Inf replaced, values clamped to the buffer's range, isolated colour outliers
+        removed, all in a copy); `last_guard` reports what it did, `last_nonfinite` counts the
+        pixels that had NaN/Inf. A frame whose albedo, normal or depth is zero everywhere (a
+        missing render pass) runs without history and the next frame starts a new one; so
+        does the frame after an output with NaN/Inf (replaced by 0). An exception (a kernel's,
+        Ctrl-C) leaves the history as it was before the call.
+        assume_finite: accepted for callers of earlier versions; the guard runs regardless.
         out: the caller's output array, (3, H, W) or (H, W, 3) / (H, W, 4) (alpha left as it
             is), float32 or float16 (clamped to the half range); written in place, returned.
         channels_last: True: every array is interleaved; False: planar; None (default): each
             array's shape tells (one that fits both, an interleaved frame C pixels tall, is
             read as planar).
         """
+        with self._lock:
+            return self._process(buffers, reset, out, channels_last)
+
+    def _process(
+        self,
+        buffers: Mapping[str, np.ndarray],
+        reset: bool,
+        out: np.ndarray | None,
+        channels_last: bool | None,
+    ) -> np.ndarray:
         start = time.perf_counter()
-        feeds, (h, w), (hp, wp) = self._prepare(buffers, assume_finite, channels_last)
+        feeds, (h, w), (hp, wp), report = self._prepare(buffers, channels_last)
         target = None if out is None else _output_view(out, (h, w), channels_last)
-        if reset or (h, w) != self._size:
-            self._pending_reset = True
+        if (h, w) != self._size and self._size is not None:
+            self._restart(f"size change: {self._size[0]}x{self._size[1]} -> {h}x{w}")
+        if reset:
+            self._restart("reset=True")
+        if report.unusable:
+            self._restart(f"unusable frame: {', '.join(report.unusable)} zero everywhere")
         if self._pending_reset:
+            report.reset = self._reset_reason
             self._start_history((h, w), (hp, wp))
         first = self._frame_index == 0
         self._write_controls()
@@ -424,9 +466,11 @@ class Denoiser:
                 result = self._run_bound(feeds, first, hp, wp)
             else:
                 result = self._run_plain(feeds, first, hp, wp)
-        except InputError:  # ContractError: the model broke the contract at run time
-            raise
-        except Exception as exc:
+        except BaseException as exc:
+            if first:  # the history this frame was to start has not started
+                self._pending_reset = True
+            if isinstance(exc, InputError) or not isinstance(exc, Exception):
+                raise  # ContractError (the model broke the contract at run time), Ctrl-C
             raise RuntimeError(
                 f"{self.source}: inference failed on frame {self.frames_processed} "
                 f"({h}x{w}, padded {hp}x{wp}): {str(exc).strip().splitlines()[-1]}"
@@ -434,23 +478,47 @@ class Denoiser:
         self.last_run_ms = (time.perf_counter() - t0) * 1e3
         self._frame_index += 1
         self.frames_processed += 1
+        frame = result[0] if (hp, wp) == (h, w) else result[0, :, :h, :w]
+        bad = replace_nonfinite("output", frame)  # in place: `result` is this call's own array
+        if bad is not None:
+            report.output_nonfinite = int(bad.sum())
+            self._restart("non-finite output in the previous frame")
+        if report.unusable:
+            self._restart("previous frame unusable: " + ", ".join(report.unusable))
+        self._note_guard(report)
         if target is not None:
-            _store(target, result[0, :, :h, :w])
+            _store(target, frame)
         elif "color" in buffers and _is_interleaved(np.asarray(buffers["color"]), 3, channels_last):
-            result = np.ascontiguousarray(result[0, :, :h, :w].transpose(1, 2, 0))
+            result = np.ascontiguousarray(frame.transpose(1, 2, 0))
         else:
-            result = result[0] if (hp, wp) == (h, w) else np.ascontiguousarray(result[0, :, :h, :w])
+            result = frame if (hp, wp) == (h, w) else np.ascontiguousarray(frame)
         self.last_total_ms = (time.perf_counter() - start) * 1e3
         return out if out is not None else result
+
+    def _note_guard(self, report: GuardReport) -> None:
+        self.last_guard = report
+        self.guard_totals.add(report)
+        self.last_nonfinite_by_buffer = dict(report.nonfinite)
+        self.last_nonfinite = report.nonfinite_pixels
+        self.total_nonfinite += report.nonfinite_pixels
+
+    def _kernel_errors(self) -> AbstractContextManager[None]:
+        """Raise a fast kernel's exception here, after the run (runtime/fastops.py)."""
+        return self._fastops.raise_kernel_errors() if self._fastops else nullcontext()
+
+    def _session_call(self, run: Callable[..., Any], *args: Any) -> Any:
+        """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
+        it returns, before any state is swapped: a failed frame leaves the history as it was."""
+        with deferred_signals(), self._kernel_errors():
+            return run(*args)
 
     def _prepare(
         self,
         buffers: Mapping[str, np.ndarray],
-        assume_finite: bool = False,
         channels_last: bool | None = None,
-    ) -> tuple[dict[str, np.ndarray], tuple[int, int], tuple[int, int]]:
-        """Validate, sanitize (unless `assume_finite`) and pad the buffers the model reads;
-        interleaved and half-float buffers become planar float32 in the same one copy."""
+    ) -> tuple[dict[str, np.ndarray], tuple[int, int], tuple[int, int], GuardReport]:
+        """Validate, guard and pad the buffers the model reads; interleaved and half-float
+        buffers become planar float32 in one copy, which the guard may then fix in place."""
         if not isinstance(buffers, Mapping):
             raise InputError(f"process() takes a dict name -> array, got {type(buffers).__name__}")
         specs = self._contract.buffers
@@ -482,23 +550,16 @@ class Denoiser:
             sh, sw = self._static_hw
             raise InputError(f"model takes {sh}x{sw} frames only, got {h}x{w} (padded {hp}x{wp})")
 
-        feeds: dict[str, np.ndarray] = {}
-        counts: dict[str, int] = {}
+        converted: dict[str, np.ndarray] = {}
+        owned = []
         for name, a in arrays.items():
-            original = np.asarray(buffers[name])
             a32 = np.ascontiguousarray(a, dtype=np.float32)
-            bad = 0 if assume_finite else _count_nonfinite(a32)
-            feed = _pad_edge(a32, hp, wp)
-            if bad:
-                if np.may_share_memory(feed, original):
-                    feed = feed.copy()  # never modify the caller's array
-                np.nan_to_num(feed, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-                counts[name] = bad
-            feeds[name] = feed
-        self.last_nonfinite_by_buffer = counts
-        self.last_nonfinite = sum(counts.values())
-        self.total_nonfinite += self.last_nonfinite
-        return feeds, (h, w), (hp, wp)
+            if not np.may_share_memory(a32, np.asarray(buffers[name])):
+                owned.append(name)  # a converted copy: the guard may fix it in place
+            converted[name] = a32
+        guarded, report = guard_buffers(converted, owned)  # never modifies the caller's arrays
+        feeds = {name: _pad_edge(a, hp, wp) for name, a in guarded.items()}
+        return feeds, (h, w), (hp, wp), report
 
     def _check_shape(
         self, spec: BufferSpec, a: np.ndarray, channels_last: bool | None = None
@@ -568,7 +629,7 @@ class Denoiser:
         for s in self.state_specs:
             inputs[s.input_name] = self._state[s.name]
         names = [OUTPUT] + [s.output_name for s in self.state_specs]
-        out, *states = self._session.run(names, inputs)
+        out, *states = self._session_call(self._session.run, names, inputs)
         self._check_output_shape(out.shape, hp, wp)
         bad = 0
         for s, value in zip(self.state_specs, states, strict=True):
@@ -601,7 +662,7 @@ class Denoiser:
             io.bind_ortvalue_output(s.output_name, following.value)
         out = np.empty((1, 3, hp, wp), np.float32)
         io.bind_ortvalue_output(OUTPUT, ort.OrtValue.ortvalue_from_numpy(out))  # written in place
-        self._session.run_with_iobinding(io)
+        self._session_call(self._session.run_with_iobinding, io)
         # On CPU check every state tensor (one cheap sum each); on a device only when the
         # output shows a problem, so that state stays on the device.
         check_state = self._device is None or _count_nonfinite(out) > 0

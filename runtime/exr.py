@@ -2,7 +2,9 @@
 
 Channels are plain 2-D arrays keyed by their full EXR channel name
 ("R", "albedo.G", "ViewLayer.Denoising Albedo.R"). Multi-part files (Blender 5
-multilayer) are flattened: every part's channels go into one dict.
+multilayer) are flattened: every part's channels go into one dict. A channel name that
+several parts use (parts "rgb" and "albedo" each with R, G, B) is read as
+`<part name>.<channel>` ("rgb.R", "albedo.R"), never one part silently over another.
 Writes are atomic: a temp file in the target folder, then a rename.
 
 The bindings (OpenEXR 3.x) always decode every channel of a file: they have no way to read
@@ -23,17 +25,57 @@ from .atomic import atomic_path
 from .errors import InputError
 
 
+def _part_name(part: object) -> str | None:
+    try:
+        name = part.name()  # type: ignore[attr-defined]
+    except Exception:
+        return None
+    return name or None
+
+
+def qualified_names(path: Path, parts: list[tuple[str | None, list[str]]]) -> list[dict[str, str]]:
+    """Per part, channel name -> the name it is read as: itself, or `<part name>.<channel>`
+    when several parts use that name. InputError if that cannot make the names unique."""
+    count: dict[str, int] = {}
+    for _, names in parts:
+        for n in names:
+            count[n] = count.get(n, 0) + 1
+    result: list[dict[str, str]] = []
+    seen: dict[str, int] = {}
+    for i, (part, names) in enumerate(parts):
+        mapping = {}
+        for n in names:
+            full = n
+            if count[n] > 1:
+                if not part:
+                    raise InputError(
+                        f"{path}: channel {n!r} is in {count[n]} parts and part {i} has no name"
+                    )
+                full = f"{part}.{n}"
+            if full in seen:
+                raise InputError(
+                    f"{path}: channel {full!r} is in parts {seen[full]} and {i}; rename the "
+                    "parts or their channels"
+                )
+            seen[full] = i
+            mapping[n] = full
+        result.append(mapping)
+    return result
+
+
 def _decode(path: Path) -> dict[str, np.ndarray]:
     """Every channel the bindings decode, as 2-D arrays in the file's own pixel type."""
     try:
         with OpenEXR.File(str(path), separate_channels=True) as exr:
+            parts = [(_part_name(p), list(p.channels)) for p in exr.parts]
+            names = qualified_names(path, parts)
             channels: dict[str, np.ndarray] = {}
-            for part in exr.parts:
+            for part, mapping in zip(exr.parts, names, strict=True):
                 for name, channel in part.channels.items():
                     pixels = np.asarray(channel.pixels)
                     if pixels.ndim != 2:
                         raise InputError(f"{path}: channel {name!r} has shape {pixels.shape}")
-                    channels[name] = pixels
+                    channels[mapping[name]] = pixels
     except InputError:
         raise
     except Exception as exc:  # OpenEXR raises RuntimeError/OSError for truncated/corrupt files
@@ -98,11 +140,15 @@ def read_exr_header(path: str | os.PathLike) -> dict[str, tuple[int, int]]:
         raise InputError(f"{path}: no such file")
     try:
         with OpenEXR.File(str(path), separate_channels=True, header_only=True) as exr:
+            parts = [(_part_name(p), [c.name for c in p.header["channels"]]) for p in exr.parts]
+            names = qualified_names(path, parts)
             sizes: dict[str, tuple[int, int]] = {}
-            for part in exr.parts:
+            for part, mapping in zip(exr.parts, names, strict=True):
                 (x0, y0), (x1, y1) = (tuple(int(v) for v in c) for c in part.header["dataWindow"])
                 for channel in part.header["channels"]:
-                    sizes[channel.name] = (y1 - y0 + 1, x1 - x0 + 1)
+                    sizes[mapping[channel.name]] = (y1 - y0 + 1, x1 - x0 + 1)
+    except InputError:
+        raise
     except Exception as exc:  # OpenEXR raises RuntimeError for truncated/corrupt headers
         raise InputError(f"{path}: cannot read EXR ({exc})") from exc
     if not sizes:

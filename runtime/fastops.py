@@ -15,15 +15,24 @@ Pitfalls handled here (research-notes "Custom ops"):
 - every declared attribute must be present on the node (the exporter writes them all);
 - inputs and outputs are copied on every call; at 720p KernelApply's 49-channel kernel is
   180 MB, and glibc serves such blocks with fresh mmaps that page-fault on every call.
-  `tune_allocator()` (opt-in, process-wide) keeps them in the heap instead.
+  `tune_allocator()` (opt-in, process-wide) keeps them in the heap instead;
+- **a Python exception that leaves an op aborts the process** (SIGABRT: the C++ bridge
+  rethrows it across ONNX Runtime's C boundary): Ctrl-C while a kernel runs, an out-of-memory,
+  a kernel's own error. So nothing leaves: every op body and the result hook catch every
+  exception (KeyboardInterrupt included), return NaN outputs of the right shapes and record the
+  exception for the calling thread; `raise_kernel_errors()` (which `Denoiser` wraps around
+  every run) raises it there once the run has returned (docs/reliability.md).
 No torch here.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 import warnings
 from collections import Counter
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 import numpy as np
 import onnxruntime as ort
@@ -65,26 +74,109 @@ CALLS: Counter[str] = Counter()
 _hook_installed = False
 
 
+class KernelError(RuntimeError):
+    """A fast kernel raised inside ONNX Runtime; the original exception is its __cause__."""
+
+
+# The first exception a kernel raised in this thread since the last `raise_kernel_errors`.
+_pending = threading.local()
+
+
+def _record(exc: BaseException, op: str) -> None:
+    """Remember the first failure of this thread's run (never raises)."""
+    try:
+        if getattr(_pending, "error", None) is None:
+            _pending.error, _pending.op = exc, op
+    except BaseException:  # nothing may leave an op
+        pass
+
+
+def _nan_outputs(shapes: Sequence[tuple[int, ...]]) -> tuple[np.ndarray, ...]:
+    """NaN arrays of `shapes` (zero-size ones if even that fails): what a failed op returns."""
+    try:
+        return tuple(np.full(s, np.nan, np.float32) for s in shapes)
+    except BaseException:
+        return tuple(np.zeros((0,), np.float32) for _ in shapes)
+
+
+def take_kernel_error() -> tuple[BaseException, str] | None:
+    """(exception, op name) of the first kernel failure in this thread since the last call,
+    cleared; None if there was none."""
+    error = getattr(_pending, "error", None)
+    _pending.error = None
+    return None if error is None else (error, _pending.op)
+
+
+@contextmanager
+def raise_kernel_errors() -> Iterator[None]:
+    """Wrap `session.run`: a kernel's exception is raised here, after the run returned.
+
+    KeyboardInterrupt and SystemExit are re-raised as they are; any other exception as a
+    `KernelError` naming the op, chained to the original. A host driving a session with
+    `register_fast_kernels` itself wraps its runs in this (the outputs of a run whose kernel
+    failed are NaN, never a crash).
+    """
+    take_kernel_error()  # a stale failure of an unchecked run is not this run's
+    try:
+        yield
+    except BaseException:  # e.g. ONNX Runtime failing on a failed op's empty output
+        failure = take_kernel_error()
+        if failure is None:
+            raise
+        raise _as_raised(*failure)  # noqa: B904  (the kernel's error is the cause)
+    failure = take_kernel_error()
+    if failure is not None:
+        raise _as_raised(*failure)
+
+
+def _as_raised(exc: BaseException, op: str) -> BaseException:
+    """What the caller sees of a kernel's exception: interrupts as they are, else KernelError."""
+    if not isinstance(exc, Exception):  # KeyboardInterrupt, SystemExit, ...
+        return exc
+    first = (str(exc).strip().splitlines() or [""])[0]
+    error = KernelError(f"fast kernel {op} failed: {type(exc).__name__}: {first}")
+    error.__cause__ = exc
+    return error
+
+
 def _array_hook(k_id: int, feed: list, attributes: dict) -> tuple:
     """Result hook: like onnxruntime_extensions._ocos._on_pyop_invocation, returning arrays.
 
     The C++ side receives (k_id, shape_0, values_0, shape_1, values_1, ...); it accepts a
-    numpy array for values, which skips the per-element Python list round trip.
+    numpy array for values, which skips the per-element Python list round trip. Never raises
+    (see the module docstring): a failure returns NaN outputs and is recorded.
     """
-    opdef = _ortx_ocos.Opdef._odlist.get(k_id)
-    if opdef is None:
-        raise RuntimeError(f"no Python custom op with id {k_id}; was it declared with @onnx_op?")
-    rv = opdef.body(*feed, **opdef.cast_attributes(attributes))
-    results = rv if isinstance(rv, tuple) else (rv,)
-    out: list = []
-    for r in results:
-        r = np.asarray(r)
-        out.append(r.shape)
-        if r.dtype.kind in "OUS":  # string tensors keep the library's list protocol
-            out.append(r.flatten().tolist())
-        else:
-            out.append(np.ascontiguousarray(r))
-    return (k_id, *out)
+    try:
+        opdef = _ortx_ocos.Opdef._odlist.get(k_id)
+        if opdef is None:
+            raise RuntimeError(f"no Python custom op with id {k_id}; declared with @onnx_op?")
+        rv = opdef.body(*feed, **opdef.cast_attributes(attributes))
+        results = rv if isinstance(rv, tuple) else (rv,)
+        out: list = []
+        for r in results:
+            r = np.asarray(r)
+            out.append(r.shape)
+            if r.dtype.kind in "OUS":  # string tensors keep the library's list protocol
+                out.append(r.flatten().tolist())
+            else:
+                out.append(np.ascontiguousarray(r))
+        return (k_id, *out)
+    except BaseException as exc:
+        return _hook_failure(k_id, exc)
+
+
+def _hook_failure(k_id: int, exc: BaseException) -> tuple:
+    """The result of an op whose body or conversion failed: zero-size outputs (never raises;
+    the bodies declared here have already returned NaN outputs of the right shapes)."""
+    try:
+        opdef = _ortx_ocos.Opdef._odlist.get(k_id)
+        name = getattr(opdef, "op_type", f"op {k_id}")
+        count = len(opdef._nativedef.output_types) if opdef is not None else 1
+    except BaseException:
+        name, count = f"op {k_id}", 1
+    _record(exc, str(name))
+    empty = np.zeros((0,), np.float32)
+    return (k_id, *[x for _ in range(count) for x in ((0,), empty)])
 
 
 def install_array_hook() -> bool:
@@ -111,10 +203,24 @@ def hook_installed() -> bool:
     return _hook_installed
 
 
+def _output_shapes(kernel: FastKernel, inputs: Sequence, attrs: dict) -> list[tuple[int, ...]]:
+    """The spec's output shapes for these inputs; (0,) each where the spec cannot tell."""
+    try:
+        shapes = kernel.spec.output_shapes([np.shape(a) for a in inputs], attrs)
+        return [tuple(int(d) for d in s) for s in shapes]
+    except BaseException:
+        return [(0,)] * len(kernel.spec.outputs)
+
+
 def _declare(kernel: FastKernel) -> None:
     def body(*inputs, **attrs):
-        CALLS[kernel.name] += 1
-        return kernel(*inputs, **attrs)
+        try:
+            CALLS[kernel.name] += 1
+            return kernel(*inputs, **attrs)
+        except BaseException as exc:  # leaving the op would abort the process
+            _record(exc, kernel.name)
+            outs = _nan_outputs(_output_shapes(kernel, inputs, attrs))
+            return outs if len(outs) > 1 else outs[0]
 
     body.__name__ = f"rtdenoise_{kernel.name}"
     onnx_op(
@@ -139,8 +245,11 @@ def register_fast_kernels(so: ort.SessionOptions) -> None:
 __all__ = [
     "CALLS",
     "FAST_OPS",
+    "KernelError",
     "hook_installed",
     "install_array_hook",
+    "raise_kernel_errors",
     "register_fast_kernels",
+    "take_kernel_error",
     "tune_allocator",
 ]

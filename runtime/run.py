@@ -5,9 +5,14 @@ formats the report (a dict, the metrics JSON of one sequence) as it likes.
 
 Per frame the lean path does: read only the channels the backend needs (resolved once per
 sequence from the headers), one NaN/Inf pass per buffer (in the reader; the backend is told
-with `assume_finite=True`), process, one NaN/Inf check of the output, quantise once (half by
-default) and write that array; the float32 view of exactly that array is what is scored
-and previewed.
+with `assume_finite=True`; a `Denoiser` still guards ranges and outliers), process, one NaN/Inf
+check of the output, quantise once (half by default) and write that array; the float32 view of
+exactly that array is what is scored and previewed.
+
+Before the first frame: every header, the references, the output paths (no existing output
+replaced unless `overwrite`; kept with `resume`) and the output folder's writability are
+checked, and temp files a killed run left for these outputs are removed. Frame-number gaps
+reset the history. docs/reliability.md has every case.
 """
 
 from __future__ import annotations
@@ -22,25 +27,32 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import check_writable, temp_files_of
 from .backend import Backend
 from .contract import SAMPLES
 from .errors import InputError
+from .exr import read_exr
 from .layouts import Layout
 from .metrics import SequenceMetrics
 from .preview import write_png
 from .samples import sample_features_of
 from .sequence import (
+    frame_number,
     match_references,
     nonfinite_pixels,
     plan_sequence,
     quantize_output,
-    read_reference,
+    reference_pixels,
     scan_reference,
     write_rgb,
 )
 
 METRIC_KEYS = ("psnr", "ssim", "smape", "relmse")
-MAX_WARNINGS = 10  # NaN/Inf warnings per sequence, then one line with the rest
+MAX_WARNINGS = 10  # NaN/Inf and guard warnings per sequence, then one line with the rest
+# --resume re-runs up to this many frames before the first frame to denoise: the history of
+# the accumulating models keeps 0.8 ** 16 = 2.8 % of what came before (exact when fewer
+# frames precede it since the last reset).
+RESUME_WARMUP = 16
 
 
 @dataclass
@@ -54,9 +66,10 @@ class Job:
 
 
 def check_out_dir(out_dir: Path) -> None:
-    """InputError when the output folder exists as a file."""
+    """InputError when the output folder exists as a file or cannot be written."""
     if out_dir.exists() and not out_dir.is_dir():
         raise InputError(f"{out_dir}: output folder is a file")
+    check_writable(out_dir / "frame.exr")
 
 
 def plan_outputs(job: Job, references: Sequence[Path | None], preview: bool) -> list[Path]:
@@ -68,11 +81,58 @@ def plan_outputs(job: Job, references: Sequence[Path | None], preview: bool) -> 
         if out in seen:
             raise InputError(f"{src} and {seen[out]} would both be written to {out}")
         seen[out] = src
-        targets = [out] + ([out.with_suffix(".png")] if preview else [])
-        for t in targets:
+        for t in _targets(out, preview):
             if t.resolve() in inputs:
                 raise InputError(f"{t}: writing the output would overwrite an input file")
     return outputs
+
+
+def _targets(out: Path, preview: bool) -> list[Path]:
+    """The files written for one frame."""
+    return [out] + ([out.with_suffix(".png")] if preview else [])
+
+
+def frames_done(
+    outputs: Sequence[Path], preview: bool, *, overwrite: bool, resume: bool
+) -> list[bool]:
+    """Which frames are already done (all their files exist) and are kept (`resume`).
+
+    InputError when some output exists and neither `overwrite` nor `resume` says what to do
+    with it: outputs never replace existing files by surprise (docs/reliability.md).
+    """
+    if overwrite and resume:
+        raise InputError("--overwrite and --resume exclude each other")
+    existing = [t for out in outputs for t in _targets(out, preview) if t.exists()]
+    if existing and not (overwrite or resume):
+        more = f" (and {len(existing) - 1} more)" if len(existing) > 1 else ""
+        raise InputError(
+            f"{existing[0]}: output exists{more}; --overwrite replaces existing outputs, "
+            "--resume keeps them and denoises the frames that have none"
+        )
+    if not resume:
+        return [False] * len(outputs)
+    return [all(t.exists() for t in _targets(out, preview)) for out in outputs]
+
+
+def remove_stale_temps(outputs: Sequence[Path], preview: bool) -> int:
+    """Remove the temp files a killed run left for these outputs; how many there were."""
+    stale = [
+        t for out in outputs for target in _targets(out, preview) for t in temp_files_of(target)
+    ]
+    for t in stale:
+        t.unlink(missing_ok=True)
+    return len(stale)
+
+
+def gap_before(frames: Sequence[Path], i: int) -> int | None:
+    """The number of frames missing between frame i - 1 and frame i (by frame number), or
+    None when they are consecutive (or unnumbered)."""
+    if i == 0:
+        return None
+    a, b = frame_number(frames[i - 1]), frame_number(frames[i])
+    if a is None or b is None or b == a + 1:
+        return None
+    return b - a - 1
 
 
 def _nothing(*_: object) -> None:
@@ -82,10 +142,16 @@ def _nothing(*_: object) -> None:
 def _nonfinite_message(pixels: int, buffers: Sequence[str], bad_out: int) -> str:
     parts = []
     if pixels:
-        parts.append(f"{pixels} pixels with NaN/Inf in {', '.join(buffers)} replaced by 0")
+        parts.append(f"{pixels} pixels with NaN/Inf in {', '.join(buffers)} replaced")
     if bad_out:
         parts.append(f"{bad_out} non-finite output pixels replaced by 0")
     return "; ".join(parts)
+
+
+def _read_rgb(path: Path) -> np.ndarray:
+    """R,G,B of an output file as float32 (3, H, W)."""
+    ch = read_exr(path, list("RGB"))
+    return np.stack([ch[c] for c in "RGB"])
 
 
 def run_sequence(
@@ -96,6 +162,8 @@ def run_sequence(
     *,
     half: bool = True,
     preview: bool = False,
+    overwrite: bool = False,
+    resume: bool = False,
     on_frame: Callable[[], None] = _nothing,
     on_warning: Callable[[str], None] = _nothing,
     reading: Callable[[], AbstractContextManager[Any]] = nullcontext,
@@ -103,8 +171,13 @@ def run_sequence(
     """Denoise one sequence; returns its report (the metrics JSON of one sequence).
 
     Checks every header, the references and the output paths before writing anything.
-    on_frame: called after each frame is written and scored.
-    on_warning: one-line warnings (frames without reference, NaN/Inf replaced).
+    overwrite: replace existing outputs; resume: keep them (those frames are scored from
+        their files) and denoise the others, after re-running up to `RESUME_WARMUP` frames
+        before each to rebuild the history; neither: InputError if an output exists.
+    A gap in the frame numbers (2 -> 4) resets the history, with a warning, and breaks the
+    temporal metrics' chain.
+    on_frame: called after each frame is written (or kept) and scored.
+    on_warning: one-line warnings (frames without reference, NaN/Inf replaced, guard, gaps).
     reading: a context manager factory wrapped around every file read (the CLI silences
         OpenEXR's own prints on the process's stdout/stderr with it).
     """
@@ -128,65 +201,103 @@ def run_sequence(
             if ref is not None:
                 scan_reference(ref, layout, expect_size=size)
     outputs = plan_outputs(job, references, preview)
+    done = frames_done(outputs, preview, overwrite=overwrite, resume=resume)
+    stale = remove_stale_temps(outputs, preview)
+    if stale:
+        on_warning(f"{job.out_dir}: removed {stale} temp files an interrupted run left")
 
     scored_out, scored_in = SequenceMetrics(), SequenceMetrics()
     rows: list[dict[str, Any]] = []
     times: dict[str, list[float]] = {"read": [], "denoise": [], "write": []}
     warnings = 0
     previous_scored = False
+    fed = -1  # index of the last frame the backend has seen (its history ends there)
+    segment = 0  # index of the first frame after the last gap
     backend.reset()
     for i, (path, ref, out_path) in enumerate(zip(job.frames, references, outputs, strict=True)):
+        gap = gap_before(job.frames, i)
+        if gap:
+            segment = i
+            backend.reset()
+            on_warning(
+                f"{path}: {gap} frame{'s' * (gap > 1)} missing before it (frame numbers "
+                f"{frame_number(job.frames[i - 1])} -> {frame_number(path)}): history reset"
+            )
+        if done[i] and ref is None:
+            rows.append(_row(i, path, out_path, None, skipped=True))
+            on_frame()
+            continue
+        if not done[i] and fed != i - 1 and i > segment:  # frames before it were kept:
+            backend.reset()  # rebuild the history from them (not timed, not written)
+            for j in range(max(segment, i - RESUME_WARMUP), i):
+                with reading():
+                    warm = plan.read(job.frames[j], index=j)
+                backend.process(warm.buffers, assume_finite=True)
         t0 = time.perf_counter()
         with reading():
             frame = plan.read(path, index=i)
         t1 = time.perf_counter()
-        out = np.asarray(backend.process(frame.buffers, assume_finite=True), dtype=np.float32)
-        if out.ndim == 4 and out.shape[0] == 1:
-            out = out[0]
-        if out.shape != (3, *size):
-            raise RuntimeError(f"{path}: the model returned shape {out.shape}, not (3, *{size})")
-        bad_mask = nonfinite_pixels(out)
-        bad_out = 0 if bad_mask is None else int(bad_mask.sum())
-        if bad_out:  # a copy: the array may be the backend's own
-            out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
-        t2 = time.perf_counter()
-        written = quantize_output(out, half)
-        write_rgb(out_path, written, half)
-        # Score and preview what was written: the float32 view of the stored half floats.
-        view = written.astype(np.float32) if half and (preview or ref is not None) else written
-        if preview:
-            write_png(out_path.with_suffix(".png"), view)
-        t3 = time.perf_counter()
-        for key, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2), strict=True):
-            times[key].append(dt * 1e3)
-
-        if frame.nonfinite or bad_out:
-            warnings += 1
-            if warnings <= MAX_WARNINGS:
-                message = _nonfinite_message(frame.nonfinite, frame.nonfinite_buffers, bad_out)
-                on_warning(f"{path}: {message}")
-        row: dict[str, Any] = {
-            "index": frame.index,
-            "file": str(path),
-            "output": str(out_path),
-            "reference": str(ref) if ref else None,
-            "nonfinite": frame.nonfinite,
-        }
+        row = _row(i, path, out_path, ref, skipped=done[i], frame=frame)
+        if done[i]:  # kept from an earlier run: score the file
+            with reading():
+                view = _read_rgb(out_path)
+        else:
+            out = np.asarray(backend.process(frame.buffers, assume_finite=True), dtype=np.float32)
+            fed = i
+            if out.ndim == 4 and out.shape[0] == 1:
+                out = out[0]
+            if out.shape != (3, *size):
+                raise RuntimeError(
+                    f"{path}: the model returned shape {out.shape}, not (3, *{size})"
+                )
+            bad_mask = nonfinite_pixels(out)
+            bad_out = 0 if bad_mask is None else int(bad_mask.sum())
+            if bad_out:  # a copy: the array may be the backend's own
+                out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+            t2 = time.perf_counter()
+            written = quantize_output(out, half)
+            write_rgb(out_path, written, half)
+            # Score and preview what was written: the float32 view of the stored half floats.
+            view = written.astype(np.float32) if half and (preview or ref is not None) else written
+            if preview:
+                write_png(out_path.with_suffix(".png"), view)
+            t3 = time.perf_counter()
+            for key, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2), strict=True):
+                times[key].append(dt * 1e3)
+            guard = getattr(backend, "last_guard", None)
+            guard_text = guard.summary() if guard is not None else ""
+            row["reset"] = getattr(guard, "reset", None)
+            row["guard"] = guard_text or None
+            message = "; ".join(
+                m
+                for m in (
+                    _nonfinite_message(frame.nonfinite, frame.nonfinite_buffers, bad_out),
+                    guard_text,
+                )
+                if m
+            )
+            if message:
+                warnings += 1
+                if warnings <= MAX_WARNINGS:
+                    on_warning(f"{path}: {message}")
+        consecutive = previous_scored and not gap
+        target = None
         if ref is not None:
             with reading():
-                target = read_reference(ref, layout, expect_size=size)
-            row.update(scored_out.add(view, target, consecutive=previous_scored))
-            row["input"] = scored_in.add(
-                frame.buffers["color"], target, consecutive=previous_scored
-            )
-        else:
-            row.update(dict.fromkeys(METRIC_KEYS))
-            row["input"] = None
-        previous_scored = ref is not None
+                target, bad_ref = reference_pixels(ref, layout, expect_size=size)
+            if bad_ref:
+                on_warning(f"{ref}: {bad_ref} reference pixels are NaN/Inf: frame not scored")
+                row["reference_nonfinite"], target = bad_ref, None
+        if target is not None:
+            row.update(scored_out.add(view, target, consecutive=consecutive))
+            row["input"] = scored_in.add(frame.buffers["color"], target, consecutive=consecutive)
+        previous_scored = target is not None
         rows.append(row)
         on_frame()
     if warnings > MAX_WARNINGS:
-        on_warning(f"{job.name}: {warnings - MAX_WARNINGS} more frames had NaN/Inf values")
+        on_warning(
+            f"{job.name}: {warnings - MAX_WARNINGS} more frames had input fixed by the guard"
+        )
 
     out_summary, in_summary = scored_out.summary(), scored_in.summary()
     return {
@@ -196,9 +307,40 @@ def run_sequence(
         "mean": {k: out_summary[k] for k in METRIC_KEYS} if out_summary else None,
         "trmae": out_summary.get("trmae"),
         "input": in_summary or None,
-        "nonfinite": sum(r["nonfinite"] for r in rows),
+        "nonfinite": sum(r["nonfinite"] or 0 for r in rows),
+        "skipped": sum(r["skipped"] for r in rows),
         "timing_ms": {k: statistics.median(v) if v else None for k, v in times.items()},
     }
 
 
-__all__ = ["METRIC_KEYS", "Job", "check_out_dir", "plan_outputs", "run_sequence"]
+def _row(
+    i: int, path: Path, out_path: Path, ref: Path | None, *, skipped: bool, frame: Any = None
+) -> dict[str, Any]:
+    """A report row without metrics (filled in when the frame is scored)."""
+    n = frame_number(path)
+    row: dict[str, Any] = {
+        "index": frame.index if frame is not None else (n if n is not None else i),
+        "file": str(path),
+        "output": str(out_path),
+        "reference": str(ref) if ref else None,
+        "nonfinite": frame.nonfinite if frame is not None else None,
+        "skipped": skipped,
+        "reset": None,
+        "guard": None,
+        "input": None,
+    }
+    row.update(dict.fromkeys(METRIC_KEYS))
+    return row
+
+
+__all__ = [
+    "METRIC_KEYS",
+    "RESUME_WARMUP",
+    "Job",
+    "check_out_dir",
+    "frames_done",
+    "gap_before",
+    "plan_outputs",
+    "remove_stale_temps",
+    "run_sequence",
+]

@@ -15,10 +15,9 @@ layout's layers to channel names from the first frame, checks that every frame h
 channels at one size, and its `SequencePlan.read` then reads only the planned channels
 (converting only those to float32). `read_frame` is the one-file form of the same reader.
 
-Non-finite input values (NaN, Inf) are replaced by 0 and counted per frame (pixels with
-any non-finite value in any buffer), so that nothing downstream sees them: this is the one
-NaN/Inf pass over the input (a consumer may pass `assume_finite=True` to
-`Denoiser.process`).
+Non-finite input values (NaN, Inf) are replaced (by 0, or as runtime/guard.py says for depth
+and motion) and counted per frame (pixels with any non-finite value in any buffer), so that
+nothing downstream sees them; `Denoiser.process` guards the buffers again (ranges, outliers).
 
 Per-sample input: asking for the rank-5 `samples` buffer (among `buffers`) reads the
 `sample<i>.*` layers of the per-sample features `sample_features` (runtime/samples.py; the
@@ -39,6 +38,7 @@ import numpy as np
 from .contract import BUFFER_CHANNELS, SAMPLES
 from .errors import InputError
 from .exr import read_exr, read_exr_header, write_exr
+from .guard import replace_nonfinite
 from .layouts import Layout, check_channels, get_layout, resolve_channels, stack_buffers
 from .samples import DEFAULT_SAMPLE_FEATURES, SamplePlan, plan_samples, samples_from_buffers
 
@@ -238,13 +238,13 @@ def nonfinite_pixels(a: np.ndarray) -> np.ndarray | None:
 
 
 def _replace_nonfinite(buffers: dict[str, np.ndarray]) -> tuple[int, tuple[str, ...]]:
-    """NaN/Inf -> 0 in place; (pixels with any in any buffer, names of those buffers)."""
+    """NaN/Inf replaced in place by each buffer's rule (runtime/guard.py: 0 mostly, the far
+    plane for +Inf depth, off-screen for motion); (pixels with any in any buffer, names)."""
     bad_pixels: np.ndarray | None = None
     names = []
     for name, buf in buffers.items():
-        px = nonfinite_pixels(buf)
+        px = replace_nonfinite(name, buf)
         if px is not None:
-            np.nan_to_num(buf, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
             names.append(name)
             bad_pixels = px if bad_pixels is None else bad_pixels | px
     return (0 if bad_pixels is None else int(bad_pixels.sum())), tuple(names)
@@ -450,18 +450,29 @@ def _reference_channels(names: Collection[str], layout: Layout | str, path: Path
     return resolve_channels(names, _layout(layout), only_color, source=str(path))["color"]
 
 
+def reference_pixels(
+    path: Spec,
+    layout: Layout | str = "canonical",
+    expect_size: tuple[int, int] | None = None,
+) -> tuple[np.ndarray, int]:
+    """A reference image (3, H, W) float32 (channels R,G,B, else the layout's `color` source)
+    and how many of its pixels had NaN/Inf (replaced by 0: such a reference cannot score)."""
+    path = Path(path)
+    names = _reference_channels(read_exr_header(path), layout, path)
+    rgb = stack_buffers(read_exr(path, names, dtype=None), {"color": names}, str(path))["color"]
+    _check_size(path, rgb.shape[1:], expect_size)
+    bad = replace_nonfinite("color", rgb)
+    return rgb, 0 if bad is None else int(bad.sum())
+
+
 def read_reference(
     path: Spec,
     layout: Layout | str = "canonical",
     expect_size: tuple[int, int] | None = None,
 ) -> np.ndarray:
     """A reference image (3, H, W) float32: channels R,G,B, else the layout's `color` source.
-    NaN/Inf are replaced by 0. Reads (converts) only those three channels."""
-    path = Path(path)
-    names = _reference_channels(read_exr_header(path), layout, path)
-    rgb = stack_buffers(read_exr(path, names, dtype=None), {"color": names}, str(path))["color"]
-    _check_size(path, rgb.shape[1:], expect_size)
-    return np.nan_to_num(rgb, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
+    NaN/Inf are replaced by 0 (`reference_pixels` counts them). Reads only those channels."""
+    return reference_pixels(path, layout, expect_size)[0]
 
 
 def scan_reference(

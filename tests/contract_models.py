@@ -10,6 +10,8 @@ accepts). Each model has a numpy reference in the tests.
   The 4x4 pool makes the graph fail unless H, W are multiples of 4.
 - `samples_model`: stateless, no reset; output = mean over S of rank-5 `samples`.
 - `probe_model`: output = state_next.acc = state.acc + color + 100 * reset (shows the feeds).
+- `blowup_model`: output = state_next.acc = 1e30 * state.acc + color: overflows to Inf on the
+  third frame from finite input (a model bug, for the output and state guards).
 - `halfres_model`: buffers color, depth; state `low` (4 ch, scale 2); pad_multiple 2.
     low_in = avgpool2(concat(color, depth))
     low_next = 0.8 * (low * (1 - reset) + low_in * reset) + 0.2 * low_in
@@ -179,6 +181,23 @@ def probe_model(pad_multiple: int = 1) -> bytes:
     outputs = [_nchw("output", 3), _nchw("state_next.acc", 3)]
     meta = contract_metadata("probe", ["color"], [{"name": "acc", "channels": 3}], pad_multiple, {})
     return make_model(nodes, inputs, outputs, [_const("c100", 100.0)], meta)
+
+
+def blowup_model() -> bytes:
+    """output = state_next.acc = 1e30 * state.acc + color (see the module docstring)."""
+    nodes = [
+        helper.make_node("Mul", ["state.acc", "c1e30"], ["big"]),
+        helper.make_node("Add", ["big", "color"], ["state_next.acc"]),
+        helper.make_node("Identity", ["state_next.acc"], ["output"]),
+    ]
+    inputs = [
+        _nchw("color", 3),
+        helper.make_tensor_value_info("reset", F, []),
+        _nchw("state.acc", 3),
+    ]
+    outputs = [_nchw("output", 3), _nchw("state_next.acc", 3)]
+    meta = contract_metadata("blowup", ["color"], [{"name": "acc", "channels": 3}], 1, {})
+    return make_model(nodes, inputs, outputs, [_const("c1e30", 1e30)], meta)
 
 
 def samples_model() -> bytes:

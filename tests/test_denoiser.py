@@ -10,6 +10,7 @@ import pytest
 from contract_models import (
     EmaReference,
     HalfresReference,
+    blowup_model,
     ema_model,
     halfres_model,
     probe_model,
@@ -36,11 +37,18 @@ def frames(n: int, h: int, w: int, seed: int = 0, channels: int = 3) -> list[np.
     return [rng.random((channels, h, w), dtype=np.float32) * 4 for _ in range(n)]
 
 
+def albedo_frames(n: int, h: int, w: int, seed: int = 1) -> list[np.ndarray]:
+    """Albedo in [0, 1), the contract's range (the input guard clamps to it)."""
+    return [f / 4 for f in frames(n, h, w, seed)]
+
+
 @pytest.mark.parametrize("io_binding", [True, False])
 def test_ema_matches_numpy_over_8_frames(ema: bytes, io_binding: bool) -> None:
     den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
     ref = EmaReference()
-    for i, (color, albedo) in enumerate(zip(frames(8, 64, 64), frames(8, 64, 64, 1), strict=True)):
+    for i, (color, albedo) in enumerate(
+        zip(frames(8, 64, 64), albedo_frames(8, 64, 64, 1), strict=True)
+    ):
         out = den.process({"color": color, "albedo": albedo})
         assert out.shape == (3, 64, 64) and out.dtype == np.float32
         np.testing.assert_allclose(out, ref.step(color, albedo, i == 0), **TOL)
@@ -83,11 +91,11 @@ def test_resolution_change_resets(ema: bytes, probe: bytes, io_binding: bool) ->
 
     den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
     ref = EmaReference()
-    for color, albedo in zip(frames(3, 64, 64), frames(3, 64, 64, 1), strict=True):
+    for color, albedo in zip(frames(3, 64, 64), albedo_frames(3, 64, 64, 1), strict=True):
         den.process({"color": color, "albedo": albedo})
     for size in [(32, 48), (64, 64)]:
         ref = EmaReference()
-        pairs = zip(frames(3, *size, 2), frames(3, *size, 3), strict=True)
+        pairs = zip(frames(3, *size, 2), albedo_frames(3, *size, 3), strict=True)
         for i, (color, albedo) in enumerate(pairs):
             out = den.process({"color": color, "albedo": albedo})
             assert out.shape == (3, *size)
@@ -98,7 +106,9 @@ def test_resolution_change_resets(ema: bytes, probe: bytes, io_binding: bool) ->
 def test_odd_size_padded_and_cropped(ema: bytes, io_binding: bool) -> None:
     den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
     ref = EmaReference()
-    for i, (color, albedo) in enumerate(zip(frames(8, 13, 17), frames(8, 13, 17, 1), strict=True)):
+    for i, (color, albedo) in enumerate(
+        zip(frames(8, 13, 17), albedo_frames(8, 13, 17, 1), strict=True)
+    ):
         batched = color[None] if i % 2 else color  # (1, C, H, W) is accepted too
         out = den.process({"color": batched, "albedo": albedo, "normal": np.zeros(3)})
         assert out.shape == (3, 13, 17) and out.flags.c_contiguous
@@ -130,7 +140,7 @@ def test_half_resolution_state(io_binding: bool) -> None:
 def test_nonfinite_inputs_replaced_and_counted(ema: bytes, io_binding: bool) -> None:
     den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
     ref = EmaReference()
-    colors, albedos = frames(5, 16, 16), frames(5, 16, 16, 1)
+    colors, albedos = frames(5, 16, 16), albedo_frames(5, 16, 16, 1)
     bad = colors[2].copy()
     bad[0, 0, 0], bad[1, 5, 7], bad[2, 15, 15] = np.nan, np.inf, -np.inf
     bad[0, 3, 3] = np.nan
@@ -145,35 +155,36 @@ def test_nonfinite_inputs_replaced_and_counted(ema: bytes, io_binding: bool) -> 
     assert np.isnan(bad[0, 0, 0])  # the caller's array is untouched
 
 
-def test_assume_finite_skips_the_input_scan(ema: bytes) -> None:
-    """For input already sanitised (read_frame's): same result, no second NaN/Inf pass. It is
-    the caller's promise: a NaN given anyway is neither counted nor replaced."""
+def test_assume_finite_no_longer_skips_the_guard(ema: bytes) -> None:
+    """`assume_finite=True` (earlier versions skipped the NaN/Inf scan with it) is accepted and
+    changes nothing: the guard always runs, so a NaN given anyway is still replaced."""
     checked, trusting = (Denoiser(ema, fast_kernels=False) for _ in range(2))
-    colors, albedos = frames(3, 16, 16), frames(3, 16, 16, 1)
-    for color, albedo in zip(colors, albedos, strict=True):
-        a = checked.process({"color": color, "albedo": albedo})
-        b = trusting.process({"color": color, "albedo": albedo}, assume_finite=True)
-        np.testing.assert_array_equal(a, b)
-    bad = colors[0].copy()
+    colors, albedos = frames(3, 16, 16), albedo_frames(3, 16, 16, 1)
+    bad = colors[1].copy()
     bad[0, 0, 0] = np.nan
-    with pytest.warns(RuntimeWarning, match="NaN/Inf state"):  # it reached the model
-        out = trusting.process({"color": bad, "albedo": albedos[0]}, assume_finite=True)
-    assert trusting.last_nonfinite == 0 and np.isnan(out[0, 0, 0])
-    out = checked.process({"color": bad, "albedo": albedos[0]})  # the default still sanitises
-    assert checked.last_nonfinite == 1 and np.isfinite(out).all()
+    for color in (colors[0], bad, colors[2]):
+        a = checked.process({"color": color, "albedo": albedos[0]})
+        b = trusting.process({"color": color, "albedo": albedos[0]}, assume_finite=True)
+        np.testing.assert_array_equal(a, b)
+        assert np.isfinite(b).all() and trusting.last_nonfinite == checked.last_nonfinite
+    assert trusting.total_nonfinite == 1 and trusting.total_state_nonfinite == 0
 
 
 @pytest.mark.parametrize("io_binding", [True, False])
-def test_nonfinite_state_replaced(probe: bytes, io_binding: bool) -> None:
-    den = Denoiser(probe, fast_kernels=False, io_binding=io_binding)
-    huge = np.full((3, 4, 4), 3e38, np.float32)
-    den.process({"color": huge})
-    with pytest.warns(RuntimeWarning, match="NaN/Inf state"):
-        out = den.process({"color": huge})  # 3e38 + 3e38 = inf in the state
-    assert np.isinf(out).all() and den.last_state_nonfinite == 48
+def test_nonfinite_state_and_output_replaced(io_binding: bool) -> None:
+    """blowup: state_next = output = 1e30 * state + color overflows on frame 3 from finite
+    input: the output comes back finite (0 there), counted, and the next frame starts anew."""
+    den = Denoiser(blowup_model(), fast_kernels=False, io_binding=io_binding)
     one = np.ones((3, 4, 4), np.float32)
-    np.testing.assert_array_equal(den.process({"color": one}), one)  # state was zeroed
-    assert den.total_state_nonfinite == 48 and den.total_nonfinite == 0
+    np.testing.assert_array_equal(den.process({"color": one}), one)
+    assert den.process({"color": one}).min() > 1e29
+    with pytest.warns(RuntimeWarning, match="NaN/Inf state"):
+        out = den.process({"color": one})  # 1e30 * 1e30 = inf
+    np.testing.assert_array_equal(out, 0 * one)  # never NaN/Inf from process itself
+    assert den.last_guard.output_nonfinite == 16 and den.last_state_nonfinite == 48
+    np.testing.assert_array_equal(den.process({"color": 2 * one}), 2 * one)  # a new history
+    assert den.last_guard.reset == "non-finite output in the previous frame"
+    assert den.guard_totals.output_nonfinite == 16 and den.total_nonfinite == 0
 
 
 @pytest.mark.parametrize("io_binding", [True, False])
@@ -194,7 +205,9 @@ def test_io_binding_equals_session_run(ema: bytes) -> None:
     for io_binding in (True, False):
         den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
         seq = []
-        for i, (c, a) in enumerate(zip(frames(8, 24, 20, 5), frames(8, 24, 20, 6), strict=True)):
+        for i, (c, a) in enumerate(
+            zip(frames(8, 24, 20, 5), albedo_frames(8, 24, 20, 6), strict=True)
+        ):
             if i == 3:
                 c = c.copy()
                 c[0, 1, 1] = np.nan
@@ -207,7 +220,7 @@ def test_io_binding_equals_session_run(ema: bytes) -> None:
 
 
 def test_fast_kernels_default_same_result(ema: bytes) -> None:
-    color, albedo = frames(1, 16, 16)[0], frames(1, 16, 16, 1)[0]
+    color, albedo = frames(1, 16, 16)[0], albedo_frames(1, 16, 16, 1)[0]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # fast kernels may not be installed
         fast = Denoiser(ema, threads=1)
@@ -244,7 +257,7 @@ def test_bad_buffer_shapes(ema: bytes, albedo: np.ndarray, match: str) -> None:
 
 def test_other_dtypes_converted(ema: bytes) -> None:
     den = Denoiser(ema, fast_kernels=False)
-    color, albedo = frames(1, 8, 8)[0], frames(1, 8, 8, 1)[0]
+    color, albedo = frames(1, 8, 8)[0], albedo_frames(1, 8, 8, 1)[0]
     out = den.process({"color": color.astype(np.float64), "albedo": albedo.astype(np.float16)})
     ref = EmaReference().step(color, albedo.astype(np.float16).astype(np.float32), True)
     np.testing.assert_allclose(out, ref, **TOL)
@@ -337,8 +350,9 @@ def test_out_arrays_are_filled_in_place(ema: bytes) -> None:
     np.testing.assert_array_equal(rgba[..., :3], expected.transpose(1, 2, 0))
     assert (rgba[..., 3] == 7.0).all()
     half = np.zeros((3, 9, 11), np.float16)  # a half-float target clamps, never overflows
-    den.reset()
-    den.process({"color": color * 1e6, "albedo": albedo}, out=half)
+    big = Denoiser(blowup_model(), fast_kernels=False)  # 1e30 on its second frame
+    big.process({"color": color}, out=half)
+    big.process({"color": color}, out=half)
     assert np.isfinite(half).all() and half.max() == np.float16(65504)
     for bad, match in [
         (np.zeros((9, 11, 2), np.float32), r"out has shape \(9, 11, 2\); expected \(3, 9, 11\)"),

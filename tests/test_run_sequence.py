@@ -77,7 +77,7 @@ def test_backend_gets_only_its_buffers_sanitised_and_told_so(tmp_path):
     assert backend.calls[1][0]["albedo"][1, 2, 3] == 0
     assert [r["nonfinite"] for r in report["frames"]] == [0, 1, 0]
     assert warnings == [
-        f"{frames[1]}: 1 pixels with NaN/Inf in albedo replaced by 0",
+        f"{frames[1]}: 1 pixels with NaN/Inf in albedo replaced",
         f"{frames[2]}: 1 non-finite output pixels replaced by 0",
     ]
     assert np.isnan(backend.last[0, 0, 0])  # the backend's array was copied, not modified

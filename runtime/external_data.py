@@ -1,0 +1,158 @@
+"""Where an ONNX model's external data may live: inside the model's folder, nowhere else.
+
+A large model keeps tensors in side files named by `external_data` entries (`location`) of
+its TensorProtos. ONNX Runtime only refuses locations outside the model's folder in its newer
+versions, and this project supports onnxruntime >= 1.20; a model file from elsewhere could
+otherwise make the runtime read any file the process can (`../../secret`, `/etc/...`, or a
+symlink out of the folder). `check_external_data` finds every location without the `onnx`
+package (which the runtime must not need): a small reader of the protobuf wire format walks
+only the messages that can hold tensors (graphs, nodes, attributes, functions, training info)
+and skips every other field by its length. A file without the bytes `location` has no
+external data and is not parsed at all.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+
+from .errors import InputError
+
+# Field numbers (onnx/onnx.proto3) of the messages that can contain TensorProtos.
+_MODEL = {7: "graph", 20: "training_info", 25: "function"}
+_TRAINING_INFO = {1: "graph", 2: "graph"}
+_FUNCTION = {7: "node"}
+_GRAPH = {1: "node", 5: "tensor", 15: "sparse"}
+_NODE = {5: "attribute"}
+_ATTRIBUTE = {5: "tensor", 6: "graph", 10: "tensor", 11: "graph", 22: "sparse", 23: "sparse"}
+_SPARSE = {1: "tensor", 2: "tensor"}
+_TENSOR_EXTERNAL_DATA = 13
+_ENTRY_KEY, _ENTRY_VALUE = 1, 2
+
+
+class _Malformed(ValueError):
+    pass
+
+
+def _varint(buf: memoryview, i: int) -> tuple[int, int]:
+    value, shift = 0, 0
+    while True:
+        if i >= len(buf) or shift > 63:
+            raise _Malformed("truncated varint")
+        b = buf[i]
+        i += 1
+        value |= (b & 0x7F) << shift
+        if b < 0x80:
+            return value, i
+        shift += 7
+
+
+def _fields(buf: memoryview) -> Iterator[tuple[int, memoryview | None]]:
+    """(field number, payload of a length-delimited field, else None) of one message."""
+    i = 0
+    while i < len(buf):
+        key, i = _varint(buf, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            _, i = _varint(buf, i)
+            yield number, None
+        elif wire == 1:
+            i += 8
+            yield number, None
+        elif wire == 5:
+            i += 4
+            yield number, None
+        elif wire == 2:
+            size, i = _varint(buf, i)
+            if i + size > len(buf):
+                raise _Malformed("field runs past the end")
+            yield number, buf[i : i + size]
+            i += size
+        else:
+            raise _Malformed(f"unsupported wire type {wire}")
+    if i != len(buf):
+        raise _Malformed("truncated field")
+
+
+_KINDS = {
+    "model": _MODEL,
+    "training_info": _TRAINING_INFO,
+    "function": _FUNCTION,
+    "graph": _GRAPH,
+    "node": _NODE,
+    "attribute": _ATTRIBUTE,
+    "sparse": _SPARSE,
+}
+
+
+def _locations(buf: memoryview, kind: str, depth: int = 0) -> Iterator[str]:
+    if depth > 64:
+        raise _Malformed("graphs nested too deep")
+    if kind == "tensor":
+        for number, payload in _fields(buf):
+            if number == _TENSOR_EXTERNAL_DATA and payload is not None:
+                entry = {n: bytes(p) for n, p in _fields(payload) if p is not None}
+                if entry.get(_ENTRY_KEY) == b"location":
+                    yield entry.get(_ENTRY_VALUE, b"").decode("utf-8", "replace")
+        return
+    children = _KINDS[kind]
+    for number, payload in _fields(buf):
+        child = children.get(number)
+        if child is not None and payload is not None:
+            yield from _locations(payload, child, depth + 1)
+
+
+def external_locations(data: bytes) -> list[str]:
+    """Every external-data `location` in a serialized ModelProto, in file order.
+
+    ValueError if the bytes are not a well-formed protobuf message.
+    """
+    if b"location" not in data:  # the key of every external_data entry
+        return []
+    try:
+        return list(_locations(memoryview(data), "model"))
+    except _Malformed as exc:
+        raise ValueError(f"not a well-formed ONNX protobuf ({exc})") from None
+
+
+def check_external_data(model: str | os.PathLike | bytes) -> list[Path]:
+    """The external data files of `model` (a path, or serialized bytes), after checking that
+    each lies inside the model's folder (symlinks resolved) and exists. InputError naming the
+    model and the location otherwise; a model given as bytes may have no external data."""
+    if isinstance(model, (bytes, bytearray)):
+        source, data, folder = "<model bytes>", bytes(model), None
+    else:
+        path = Path(model)
+        source, data, folder = str(path), path.read_bytes(), path.resolve().parent
+    try:
+        locations = external_locations(data)
+    except ValueError as exc:
+        raise InputError(f"{source}: {exc}") from None
+    files = []
+    for location in locations:
+        if folder is None:
+            raise InputError(
+                f"{source}: the model keeps tensor data in {location!r}; give its path, not "
+                "its bytes, so that the data file can be found beside it"
+            )
+        if not location or "\0" in location:
+            raise InputError(f"{source}: bad external data location {location!r}")
+        if os.path.isabs(location) or Path(location).anchor:
+            raise InputError(
+                f"{source}: external data location {location!r} is an absolute path; it must "
+                "be a file inside the model's folder"
+            )
+        target = (folder / location).resolve()
+        if not target.is_relative_to(folder):
+            raise InputError(
+                f"{source}: external data location {location!r} points outside the model's "
+                f"folder {folder} (to {target}); refused"
+            )
+        if not target.is_file():
+            raise InputError(f"{source}: external data file {location!r} not found in {folder}")
+        files.append(target)
+    return files
+
+
+__all__ = ["check_external_data", "external_locations"]
