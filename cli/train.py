@@ -102,6 +102,10 @@ def train_command(
         int, typer.Option(min=0, help="Checkpoint every N steps (0: only at the end).")
     ] = 500,
     threads: Annotated[int, typer.Option(min=1, help="torch intra-op threads.")] = 2,
+    device: Annotated[
+        str,
+        typer.Option(help="Where to train: cpu, cuda or cuda:N (the model and every batch)."),
+    ] = "cpu",
     config: Annotated[
         str | None,
         typer.Option(help="Model config overrides: a JSON object or a JSON file."),
@@ -147,6 +151,7 @@ def train_command(
             save_every=save_every,
             threads=threads,
             sample_counts=sample_counts,
+            device=device,
         )
         result = train(
             sequences,

@@ -18,6 +18,7 @@ import torch.nn.functional as F
 from rtdenoise.runtime.contract import BUFFER_RANK
 
 from .base import DenoiserModel
+from .device import model_device
 
 Frame = Mapping[str, "torch.Tensor | np.ndarray"]
 
@@ -38,11 +39,12 @@ class FrameLoop:
 
     Frames are dicts name -> (N, C, H, W) tensors, or (C, H, W) tensors / numpy arrays for
     N = 1 (the rank-5 `samples`: (N, S, C, H, W) or (S, C, H, W)); only the model's `inputs`
-    are read. Gradients flow unless the caller disables them.
+    are read, and moved to the model's device. Gradients flow unless the caller disables them.
     """
 
     def __init__(self, model: DenoiserModel) -> None:
         self.model = model
+        self.device = model_device(model)
         self.state: dict[str, torch.Tensor] | None = None
         self._key: tuple | None = None
 
@@ -55,6 +57,7 @@ class FrameLoop:
         for name in self.model.inputs:
             x = frame[name]
             x = torch.from_numpy(np.ascontiguousarray(x)) if isinstance(x, np.ndarray) else x
+            x = x.to(self.device, non_blocking=True)
             out[name] = x if x.dim() == BUFFER_RANK.get(name, 4) else x.unsqueeze(0)
         return out
 
