@@ -51,6 +51,7 @@ class BackendSpec:
     providers: tuple[str, ...] = ()
     learn: bool = True
     learn_every: int = 1
+    options: Mapping[str, float] | None = None  # run-time options, e.g. {"kernel_size": 7}
 
     def load(self) -> Backend:
         return load_backend(
@@ -60,6 +61,7 @@ class BackendSpec:
             providers=self.providers,
             learn=self.learn,
             learn_every=self.learn_every,
+            options=self.options,
         )
 
 
