@@ -8,9 +8,11 @@ profiler (`SessionOptions.enable_profiling`) per op type per frame for each vari
 
 - `default`: ORT_ENABLE_ALL (what `Denoiser` runs);
 - `no-nchwc`: the same with `disabled_optimizers=["NchwcTransformer"]` (plain NCHW convs);
-- `extended`: ORT_ENABLE_EXTENDED (no layout transformers at all).
+- `extended`: ORT_ENABLE_EXTENDED (no layout transformers at all);
+- `padded` (with `--pad 8`): ORT_ENABLE_ALL on the model with its conv chains' hidden widths
+  zero-padded to a multiple of 8 (same outputs; WSKP's width 14 -> 16 becomes NCHWc).
 
-    python benchmarks/nchwc.py --model demo:afn --model demo:wskp --size 1280x720
+    python benchmarks/nchwc.py --model demo:afn --model demo:wskp --size 1280x720 --pad 8
 """
 
 from __future__ import annotations
@@ -64,11 +66,10 @@ def layout_report(path: str) -> str:
     for n in graph.node:
         for i in n.input:
             consumers[i].append(n.op_type)
-    counts = collections.Counter(
-        n.op_type for n in graph.node if n.domain == "com.microsoft.nchwc"
+    counts = collections.Counter(n.op_type for n in graph.node if n.domain == "com.microsoft.nchwc")
+    convs = sum(
+        n.op_type in ("Conv", "FusedConv") and n.domain != "com.microsoft.nchwc" for n in graph.node
     )
-    convs = sum(n.op_type in ("Conv", "FusedConv") and n.domain != "com.microsoft.nchwc"
-                for n in graph.node)
     lines = [f"  NCHWc nodes {dict(counts)}; NCHW convs {convs}"]
     for n in graph.node:
         if n.op_type == "ReorderOutput":
@@ -79,11 +80,60 @@ def layout_report(path: str) -> str:
     return "\n".join(lines)
 
 
+def pad_conv_chain(path: str, multiple: int = 8) -> bytes:
+    """The model with every hidden width of its Conv -> (activation) -> Conv chains zero-padded
+    to a multiple of `multiple` (extra output channels with zero weights, and zero weights
+    reading them): the same function, in a shape ORT's NchwcTransformer converts (it needs
+    output channels divisible by the NCHWc block, 8 with AVX2, 16 with AVX-512)."""
+    import numpy as np
+    from onnx import numpy_helper
+
+    m = onnx.load(path)
+    inits = {i.name: i for i in m.graph.initializer}
+    consumers = collections.defaultdict(list)
+    for n in m.graph.node:
+        for i in n.input:
+            consumers[i].append(n)
+
+    def next_convs(n):
+        """The Convs reading `n`'s output directly or through one elementwise activation."""
+        out = []
+        for c in consumers[n.output[0]]:
+            if c.op_type == "Conv":
+                out.append(c)
+            elif c.op_type in ("LeakyRelu", "Relu") and all(
+                d.op_type == "Conv" for d in consumers[c.output[0]]
+            ):
+                out += consumers[c.output[0]]
+            else:
+                return []
+        return out
+
+    for n in [n for n in m.graph.node if n.op_type == "Conv" and n.input[1] in inits]:
+        w = numpy_helper.to_array(inits[n.input[1]])
+        nxt = next_convs(n)
+        pad = -w.shape[0] % multiple
+        if not pad or not nxt or len(n.input) > 2 or any(c.input[1] not in inits for c in nxt):
+            continue
+        inits[n.input[1]].CopyFrom(
+            numpy_helper.from_array(
+                np.concatenate([w, np.zeros((pad,) + w.shape[1:], w.dtype)]), n.input[1]
+            )
+        )
+        for c in nxt:
+            v = numpy_helper.to_array(inits[c.input[1]])
+            z = np.zeros((v.shape[0], pad) + v.shape[2:], v.dtype)
+            inits[c.input[1]].CopyFrom(
+                numpy_helper.from_array(np.concatenate([v, z], 1), c.input[1])
+            )
+    del m.graph.value_info[:]  # the padded widths no longer match the recorded shapes
+    return m.SerializeToString()
+
+
 def session_denoiser(model: str, kwargs: dict, level, profile: str | None = None) -> Denoiser:
-    den = Denoiser(model)
-    den._session = ort.InferenceSession(
-        str(resolve_model(model)), options(level, profile), **kwargs
-    )
+    den = Denoiser(model, fast_kernels=True)
+    source = kwargs.pop("source", str(resolve_model(model)))
+    den._session = ort.InferenceSession(source, options(level, profile), **kwargs)
     den._binding = den._session.io_binding()
     return den
 
@@ -103,6 +153,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--model", action="append")
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--rounds", type=int, default=7)
+    ap.add_argument(
+        "--pad",
+        type=int,
+        default=0,
+        help="also time the model with conv widths zero-padded to this multiple",
+    )
     args = ap.parse_args(argv)
     fastops.tune_allocator()
     w, h = (int(v) for v in args.size.split("x"))
@@ -110,7 +166,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"# {' '.join(sys.argv)}")
     for model in args.model or ["demo:afn", "demo:wskp"]:
         print(f"\n## {model} {w}x{h}\n{layout_report(str(resolve_model(model)))}")
-        dens = {n: session_denoiser(model, kw, lv) for n, (kw, lv) in VARIANTS.items()}
+        variants = dict(VARIANTS)
+        if args.pad:
+            padded = pad_conv_chain(str(resolve_model(model)), args.pad)
+            variants["padded"] = ({"source": padded}, None)
+        dens = {n: session_denoiser(model, dict(kw), lv) for n, (kw, lv) in variants.items()}
         frames = synthetic_frames(next(iter(dens.values())).required_buffers, 4, h, w)
         times: dict[str, list[float]] = {n: [] for n in dens}
         for r in range(args.rounds + 1):
@@ -119,6 +179,10 @@ def main(argv: list[str] | None = None) -> int:
                 den.process(frames[r % 4])
                 if r:
                     times[n].append((time.perf_counter() - t0) * 1e3)
+        if args.pad:
+            ref = dens["default"].process(frames[0])
+            diff = abs(dens["padded"].process(frames[0]) - ref).max() / abs(ref).max()
+            print(f"  padded vs default: max relative difference {diff:.1e}")
         base = statistics.median(times["default"])
         for n, t in times.items():
             m = statistics.median(t)
@@ -126,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
         # the profiler slows a run: profile each variant separately, 3 frames each, in turn
         prof_dens = {
             n: session_denoiser(model, kw, lv, os.path.join(tempfile.mkdtemp(), n))
-            for n, (kw, lv) in VARIANTS.items()
+            for n, (kw, lv) in variants.items()
         }
         for r in range(4):
             for den in prof_dens.values():
@@ -134,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
         profiles = {n: profile_per_op(d) for n, d in prof_dens.items()}
         ops = sorted(profiles["default"], key=lambda o: -profiles["default"][o])
         ops += sorted({o for p in profiles.values() for o in p} - set(ops))
-        print("\n| op (ms per frame, profiler, incl. warm-up frame) | " + " | ".join(profiles) + " |")
+        head = "\n| op (ms per frame, profiler, incl. warm-up frame) | "
+        print(head + " | ".join(profiles) + " |")
         for op in ops:
             cells = [f"{profiles[n].get(op, 0.0):.1f}" for n in profiles]
             if max(profiles[n].get(op, 0.0) for n in profiles) >= 1.0:

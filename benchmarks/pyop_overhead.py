@@ -159,10 +159,16 @@ def main(argv: list[str] | None = None) -> int:
         mb_in = sum(a.nbytes for a in inputs) / 1e6
         mb_out = sum(o.nbytes for o in outs) / 1e6
         label = f"{name} {dict((k, int(v)) for k, v in attrs.items())}"
-        print(f"| {label} | {mb_in:.1f} | {mb_out:.1f} | " + " | ".join(cells) +
-              f" | {med['ort'] - med['hook']:.1f} |")
-    print("| all calls (sum of medians) | | | " + " | ".join(f"{totals[k]:.1f}" for k in LAYERS)
-          + f" | {totals['ort'] - totals['hook']:.1f} |")
+        print(
+            f"| {label} | {mb_in:.1f} | {mb_out:.1f} | "
+            + " | ".join(cells)
+            + f" | {med['ort'] - med['hook']:.1f} |"
+        )
+    print(
+        "| all calls (sum of medians) | | | "
+        + " | ".join(f"{totals[k]:.1f}" for k in LAYERS)
+        + f" | {totals['ort'] - totals['hook']:.1f} |"
+    )
     prof = profile_nodes(args.model, h, w)
     print("\nORT profiler, whole model, ms per frame (fast path, no spinning):")
     for op, ms in sorted(prof.items(), key=lambda x: -x[1])[:12]:

@@ -146,14 +146,10 @@ def compare_command(
         sizes = [parse_size(s)[::-1] for s in (size or DEFAULT_SIZES)]  # (H, W)
         qualities = [q for q in (oidn or ["high", "fast"]) if q != "none"]
         specs = models or [f"demo:{p.stem}" for p in sorted(MODELS_DIR.glob("*.onnx"))]
-        if threads:
-            import numba
-
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
         contenders = []
         for spec in specs:
             source = _onnx_source(spec)
-            for fast in (True, False) if portable else (True,):
+            for fast in ("auto", False) if portable else ("auto",):
                 label = spec + ("" if fast else " (portable)")
                 den = Denoiser(source, fast_kernels=fast, threads=threads)
                 contenders.append(compare.model_contender(label, den))

@@ -258,12 +258,18 @@ def run(
     portable: Annotated[
         bool,
         typer.Option(
-            "--portable", help="Run the custom ops' standard-ONNX bodies, not the fast kernels."
+            "--portable",
+            help="Run the custom ops' standard-ONNX bodies, never the fast kernels (default: "
+            "the fast kernels, except on small frames where the bodies are faster).",
         ),
     ] = False,
     threads: Annotated[
         int | None,
-        typer.Option("--threads", min=1, help="ONNX Runtime intra-op threads (default: all)."),
+        typer.Option(
+            "--threads",
+            min=1,
+            help="Threads of ONNX Runtime and of the fast kernels (numba) (default: all cores).",
+        ),
     ] = None,
     overwrite: Annotated[
         bool,

@@ -77,6 +77,7 @@ _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
 # fast_kernels="auto": the fast kernels from this many pixels per frame (padded), the portable
 # bodies below (docs/architecture.md, "Fast or portable"; benchmarks/README.md).
 AUTO_FAST_MIN_PIXELS = 0
+SERIAL_KERNELS_BELOW = 0
 ALLOW_SPINNING = "session.intra_op.allow_spinning"  # ORT session config key, "0" or "1"
 HALF_MAX = 65504.0  # the largest float16: an `out` in half float is clamped to it
 
@@ -292,6 +293,7 @@ class Denoiser:
         self.fast_kernels = self._fastops is not None
         self._auto = fast_kernels == "auto" and self.fast_kernels
         self.fast_min_pixels = int(fast_min_pixels)
+        self.serial_below = SERIAL_KERNELS_BELOW
         self._sessions: dict[bool, ort.InferenceSession] = {}
         self._session = self._sessions[self.fast_kernels] = self._load(options)
         self.kernel_path = "fast" if self.fast_kernels else "portable"
@@ -547,8 +549,14 @@ class Denoiser:
         self.kernel_path = "fast" if fast else "portable"
 
     def _kernel_threads(self) -> AbstractContextManager[None]:
-        """numba's thread count (`threads`) for the fast kernels of this thread's run."""
-        return self._fastops.kernel_threads(self.threads) if self._fastops else nullcontext()
+        """numba's thread count for the fast kernels of this thread's run: `threads`, or one
+        thread on frames below `serial_below` pixels (padded)."""
+        if not self._fastops:
+            return nullcontext()
+        threads = self.threads
+        if self._padded is not None and self._padded[0] * self._padded[1] < self.serial_below:
+            threads = 1
+        return self._fastops.kernel_threads(threads)
 
     def _session_call(self, run: Callable[..., Any], *args: Any) -> Any:
         """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
