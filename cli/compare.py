@@ -149,7 +149,7 @@ def compare_command(
         contenders = []
         for spec in specs:
             source = _onnx_source(spec)
-            for fast in ("auto", False) if portable else ("auto",):
+            for fast in (True, False) if portable else (True,):
                 label = spec + ("" if fast else " (portable)")
                 den = Denoiser(source, fast_kernels=fast, threads=threads)
                 contenders.append(compare.model_contender(label, den))

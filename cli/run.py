@@ -258,9 +258,7 @@ def run(
     portable: Annotated[
         bool,
         typer.Option(
-            "--portable",
-            help="Run the custom ops' standard-ONNX bodies, never the fast kernels (default: "
-            "the fast kernels, except on small frames where the bodies are faster).",
+            "--portable", help="Run the custom ops' standard-ONNX bodies, not the fast kernels."
         ),
     ] = False,
     threads: Annotated[

@@ -80,7 +80,7 @@ def load_backend(
         raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
     return Denoiser(
         model,
-        fast_kernels=False if portable else "auto",
+        fast_kernels=not portable,
         threads=threads,
         providers=list(providers or []) or None,
         learn=learn,

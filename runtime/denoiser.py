@@ -74,17 +74,20 @@ _DEVICE_OF_PROVIDER = {
     "DmlExecutionProvider": "dml",
 }
 _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
-# fast_kernels="auto": the fast kernels from this many pixels per frame (padded), the portable
-# bodies below (docs/architecture.md, "Fast or portable"; benchmarks/README.md).
-AUTO_FAST_MIN_PIXELS = 0
-SERIAL_KERNELS_BELOW = 0
+# The fast kernels run on one numba thread on frames below this many pixels (padded H x W):
+# there numba's parallel regions (a wake-up and a barrier each; on a busy machine a scheduler
+# time slice) cost more than they save (docs/architecture.md, "Threads").
+SERIAL_KERNELS_BELOW = 256 * 256
 ALLOW_SPINNING = "session.intra_op.allow_spinning"  # ORT session config key, "0" or "1"
 HALF_MAX = 65504.0  # the largest float16: an `out` in half float is clamped to it
 
 
-def use_fast_kernels(padded: tuple[int, int], fast_min_pixels: int) -> bool:
-    """fast_kernels="auto": whether frames of `padded` (H, W) run the fast kernels."""
-    return padded[0] * padded[1] >= fast_min_pixels
+def kernel_threads(
+    padded: tuple[int, int], threads: int | None, serial_below: int = SERIAL_KERNELS_BELOW
+) -> int | None:
+    """numba threads for the fast kernels on frames of `padded` (H, W): one below
+    `serial_below` pixels, else `threads` (None: numba's own setting)."""
+    return 1 if padded[0] * padded[1] < serial_below else threads
 
 
 def resolve_model(spec: str | os.PathLike) -> Path:
@@ -242,16 +245,13 @@ class Denoiser:
     """Run a contract-v1 ONNX denoiser frame by frame, keeping its temporal state.
 
     model: a path to an .onnx file, `demo:<family>`, or the serialized model bytes.
-    fast_kernels: True: run the rtdenoise custom ops with the native (numba) kernels; False:
-        run their portable ONNX function bodies, inlined by ONNX Runtime; "auto" (default): the
-        kernels for frames of at least `fast_min_pixels` (padded H x W), the portable bodies
-        below, where the kernels' per-call overhead costs more than they save (measured:
-        docs/architecture.md, "Fast or portable"). The choice is made per history, when a
-        frame size first runs (`kernel_path` tells it); both sessions give the same results.
+    fast_kernels: register the native (numba) kernels of the rtdenoise custom ops; False runs
+        their portable ONNX function bodies, inlined by ONNX Runtime.
     threads: threads of ONNX Runtime's intra-op pool and of the fast (numba) kernels, which
-        run between its ops (None: each library's default, all cores).
+        run between its ops (None: each library's default, all cores). The kernels use one
+        thread on frames below `serial_below` pixels (padded; default SERIAL_KERNELS_BELOW).
     spinning: whether ONNX Runtime's idle intra-op threads spin (busy-wait) for work; None
-        (default): not while fast kernels are registered, where they would compete with the
+        (default): not while the fast kernels are registered, where they would compete with the
         kernels' threads for the cores (docs/architecture.md, "Threads"), else ORT's default.
     providers: execution providers, e.g. ["CUDAExecutionProvider"] or ["cuda"] (default CPU).
     io_binding: keep the state in bound OrtValues between frames (default); False uses plain
@@ -265,10 +265,9 @@ class Denoiser:
         self,
         model: ModelSource,
         *,
-        fast_kernels: bool | str = "auto",
+        fast_kernels: bool = True,
         threads: int | None = None,
         spinning: bool | None = None,
-        fast_min_pixels: int = AUTO_FAST_MIN_PIXELS,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
         learn: bool = True,
@@ -280,25 +279,27 @@ class Denoiser:
             path = resolve_model(model)
             self.source, payload = str(path), str(path)
         check_external_data(payload if isinstance(payload, bytes) else path)  # inside its folder
-        if threads is not None and threads < 1:
-            raise InputError(f"threads must be >= 1, got {threads}")
-        if fast_kernels not in (True, False, "auto"):
-            raise InputError(f"fast_kernels must be True, False or 'auto', got {fast_kernels!r}")
+        options = ort.SessionOptions()
+        if threads is not None:
+            if threads < 1:
+                raise InputError(f"threads must be >= 1, got {threads}")
+            options.intra_op_num_threads = threads
         self.threads = threads
-        self._spinning = spinning
-        self._payload = payload
-        self._wanted = resolve_providers(providers)
-        options = self._session_options(threads, fast=bool(fast_kernels))
+        self.serial_below = SERIAL_KERNELS_BELOW
         self._fastops = _register_fast_kernels(options) if fast_kernels else None
         self.fast_kernels = self._fastops is not None
-        self._auto = fast_kernels == "auto" and self.fast_kernels
-        self.fast_min_pixels = int(fast_min_pixels)
-        self.serial_below = SERIAL_KERNELS_BELOW
-        self._sessions: dict[bool, ort.InferenceSession] = {}
-        self._session = self._sessions[self.fast_kernels] = self._load(options)
-        self.kernel_path = "fast" if self.fast_kernels else "portable"
+        if spinning is None and self.fast_kernels:
+            spinning = False  # idle ORT workers would spin while a kernel needs the cores
+        if spinning is not None:
+            options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
+        wanted = resolve_providers(providers)
+        try:
+            self._session = ort.InferenceSession(payload, options, providers=wanted)
+        except Exception as exc:  # onnxruntime's pybind errors derive from Exception only
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise InputError(f"{self.source}: ONNX Runtime cannot load the model: {first}") from exc
         got = self._session.get_providers()
-        for p in self._wanted:
+        for p in wanted:
             name = p if isinstance(p, str) else p[0]
             if name not in got:
                 raise InputError(
@@ -307,7 +308,6 @@ class Denoiser:
                 )
         self._contract: Contract = contract_from_session(self._session, source=self.source)
         self._device = self._state_device(got)
-        self._io_binding = io_binding
         self._binding = self._session.io_binding() if io_binding else None
         self._static_hw = self._graph_static_hw()
 
@@ -517,46 +517,12 @@ class Denoiser:
         """Raise a fast kernel's exception here, after the run (runtime/fastops.py)."""
         return self._fastops.raise_kernel_errors() if self._fastops else nullcontext()
 
-    def _session_options(self, threads: int | None, fast: bool) -> ort.SessionOptions:
-        """Options of the fast (kernels registered by the caller) or the portable session."""
-        options = ort.SessionOptions()
-        if threads is not None:
-            options.intra_op_num_threads = threads
-        spinning = self._spinning
-        if spinning is None and fast:
-            spinning = False  # idle ORT workers would spin while a kernel needs the cores
-        if spinning is not None:
-            options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
-        return options
-
-    def _load(self, options: ort.SessionOptions) -> ort.InferenceSession:
-        try:
-            return ort.InferenceSession(self._payload, options, providers=self._wanted)
-        except Exception as exc:  # onnxruntime's pybind errors derive from Exception only
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise InputError(f"{self.source}: ONNX Runtime cannot load the model: {first}") from exc
-
-    def _select_path(self, padded: tuple[int, int]) -> None:
-        """fast_kernels="auto": the fast or the portable session for frames of this size."""
-        if not self._auto:
-            return
-        fast = use_fast_kernels(padded, self.fast_min_pixels)
-        if fast not in self._sessions:
-            self._sessions[fast] = self._load(self._session_options(self.threads, fast=False))
-        if self._sessions[fast] is not self._session:
-            self._session = self._sessions[fast]
-            self._binding = self._session.io_binding() if self._io_binding else None
-        self.kernel_path = "fast" if fast else "portable"
-
     def _kernel_threads(self) -> AbstractContextManager[None]:
-        """numba's thread count for the fast kernels of this thread's run: `threads`, or one
-        thread on frames below `serial_below` pixels (padded)."""
-        if not self._fastops:
+        """numba's thread count for the fast kernels of this thread's run (`kernel_threads`)."""
+        if not self._fastops or self._padded is None:
             return nullcontext()
-        threads = self.threads
-        if self._padded is not None and self._padded[0] * self._padded[1] < self.serial_below:
-            threads = 1
-        return self._fastops.kernel_threads(threads)
+        n = kernel_threads(self._padded, self.threads, self.serial_below)
+        return self._fastops.kernel_threads(n)
 
     def _session_call(self, run: Callable[..., Any], *args: Any) -> Any:
         """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
@@ -639,7 +605,6 @@ class Denoiser:
     def _start_history(self, size: tuple[int, int], padded: tuple[int, int]) -> None:
         """Zero the state (allocating it at a new size) for a fresh history."""
         if padded != self._padded:
-            self._select_path(padded)
             self._slots, self._state = {}, {}
             hp, wp = padded
             for s in self.state_specs:
