@@ -24,6 +24,7 @@ from rtdenoise.models.ops import exporting
 from rtdenoise.runtime.contract import Declaration
 
 from . import ops as onnx_ops
+from .conv_widths import pad_conv_widths
 from .deploy import to_deploy
 from .ops import IR_VERSION, OPSET
 
@@ -133,6 +134,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
         input_names=wrapper.declared.input_names(),
         output_names=wrapper.declared.output_names(),
     )
+    pad_conv_widths(proto)  # same function; ORT's blocked conv layout (conv_widths.py)
     del proto.metadata_props[:]
     for key, value in wrapper.declared.metadata().items():
         proto.metadata_props.add(key=key, value=value)
