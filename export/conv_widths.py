@@ -99,7 +99,7 @@ def pad_conv_widths(
             w = numpy_helper.to_array(inits[c.input[1]])
             zeros = np.zeros((w.shape[0], pad, *w.shape[2:]), w.dtype)
             _set(inits[c.input[1]], np.concatenate([w, zeros], axis=1))
-        changed = set(tensors)
+        changed = {*tensors, *n.input[1:], *(c.input[1] for c in convs)}
         kept = [v for v in graph.value_info if v.name not in changed]  # shapes re-inferred
         del graph.value_info[:]
         graph.value_info.extend(kept)

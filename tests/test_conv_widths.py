@@ -38,7 +38,10 @@ def chain(widths: list[int], act: str = "LeakyRelu", bias: bool = False) -> onnx
         inits,
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)], ir_version=10)
-    return onnx.shape_inference.infer_shapes(model)  # value_info with the old widths
+    model = onnx.shape_inference.infer_shapes(model)  # value_info with the old widths
+    for i in inits:  # as torch's exporter writes them: the weights' shapes too
+        model.graph.value_info.append(helper.make_tensor_value_info(i.name, i.data_type, i.dims))
+    return model
 
 
 def run(model: onnx.ModelProto, x: np.ndarray) -> np.ndarray:
