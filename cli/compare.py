@@ -27,8 +27,23 @@ def _onnx_source(spec: str) -> str | bytes:
     return spec
 
 
-def _sequences(folders: list[Path]) -> list[tuple[str, list[dict], list]]:
-    """(name, frames, references) of each folder with references (default: the bundled ones)."""
+def _checkpoint(spec: str) -> str | None:
+    """The PyTorch checkpoint behind a model spec: demo:<family>'s shipped .pt, a .pt itself;
+    None for an .onnx file (an exported graph has no PyTorch model)."""
+    if spec.endswith((".pt", ".pth")):
+        return spec
+    if spec.startswith("demo:"):
+        from rtdenoise.shipped import MODELS_DIR
+
+        path = MODELS_DIR / f"{spec.removeprefix('demo:')}.pt"
+        return str(path) if path.is_file() else None
+    return None
+
+
+def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple[str, list[dict], list]]:
+    """(name, frames, references) of each folder with references (default: the bundled ones);
+    frames hold `buffers` (a per-sample model's `samples`: S = 1 from the pixel means when the
+    files have no sample layers)."""
     from rtdenoise.runtime.errors import InputError
     from rtdenoise.runtime.sequence import (
         find_frames,
@@ -44,9 +59,23 @@ def _sequences(folders: list[Path]) -> list[tuple[str, list[dict], list]]:
         refs = match_references(paths)
         if not all(refs):
             raise InputError(f"{folder}: every frame needs a reference ref_NNNN.exr for quality")
-        frames = [read_frame(p).buffers for p in paths]
+        frames = [read_frame(p, buffers=buffers).buffers for p in paths]
         out.append((Path(folder).name, frames, [read_reference(r) for r in refs]))
     return out
+
+
+def _eager(spec: str, device: str):
+    """The PyTorch eager contender of a model spec (needs the export extra: torch)."""
+    from rtdenoise.runtime.errors import InputError
+
+    checkpoint = _checkpoint(spec)
+    if checkpoint is None:
+        raise InputError(
+            f"--eager: {spec} has no PyTorch checkpoint (give its .pt or demo:<family>)"
+        )
+    from rtdenoise.export.eager_compare import eager_contender
+
+    return eager_contender(f"{spec} (PyTorch {device})", checkpoint, device)
 
 
 def _fmt(value: float, digits: int = 1) -> str:
@@ -121,6 +150,21 @@ def compare_command(
         int | None,
         typer.Option(min=1, help="Threads for ONNX Runtime and the fast kernels (default: all)."),
     ] = None,
+    eager: Annotated[
+        bool,
+        typer.Option(
+            "--eager",
+            help="Also time each model in PyTorch eager (its deployed form; needs its checkpoint: "
+            "demo:<family> or a .pt) on --device.",
+        ),
+    ] = False,
+    device: Annotated[
+        str,
+        typer.Option(
+            help="Torch device of the --eager models and of OIDN: cpu, or cuda[:N] (OIDN then "
+            "runs on the GPU through torch tensors). ONNX Runtime stays on its CPU provider.",
+        ),
+    ] = "cpu",
     json_path: Annotated[
         Path | None, typer.Option("--json", help="Write every number here (JSON).")
     ] = None,
@@ -146,6 +190,14 @@ def compare_command(
         sizes = [parse_size(s)[::-1] for s in (size or DEFAULT_SIZES)]  # (H, W)
         qualities = [q for q in (oidn or ["high", "fast"]) if q != "none"]
         specs = models or [f"demo:{p.stem}" for p in sorted(MODELS_DIR.glob("*.onnx"))]
+        if device != "cpu":  # checked before any work (needs torch)
+            from rtdenoise.models.device import torch_device
+
+            torch_device(device)
+        if threads and eager:  # Denoiser(threads=) sets ORT's and numba's own
+            import torch
+
+            torch.set_num_threads(threads)
         contenders = []
         for spec in specs:
             source = _onnx_source(spec)
@@ -153,8 +205,16 @@ def compare_command(
                 label = spec + ("" if fast else " (portable)")
                 den = Denoiser(source, fast_kernels=fast, threads=threads)
                 contenders.append(compare.model_contender(label, den))
-        contenders += [compare.oidn_contender(q) for q in qualities]
-        seqs = _sequences(list(sequence or []))
+            if eager:
+                contenders.append(_eager(spec, device))
+        if device == "cpu":
+            contenders += [compare.oidn_contender(q) for q in qualities]
+        else:
+            from rtdenoise.export.eager_compare import oidn_torch_contender
+
+            contenders += [oidn_torch_contender(q, device) for q in qualities]
+        needed = sorted({b for c in contenders for b in c.buffers})
+        seqs = _sequences(list(sequence or []), needed)
         with console.status("comparing") as status:
             say = lambda msg: status.update(f"comparing: {msg}")  # noqa: E731
             speed = compare.speed(contenders, sizes, repeats=repeats, progress=say)
@@ -164,6 +224,7 @@ def compare_command(
         result = {
             "machine": machine,
             "threads": threads,
+            "device": device,
             "repeats": repeats,
             "sequences": [s[0] for s in seqs],
             "speed": speed,

@@ -31,6 +31,9 @@ Each folder holds, for frame NNNN (0-based):
                   albedo.R/G/B | normal.X/Y/Z (camera space: x right, y up,
                   z towards the camera) | depth.Z (planar, background 1e4)
                   motion.X/Y (pixels; previous = current + motion; y down)
+                  with --samples S: sample<i>.R/G/B, sample<i>.albedo.R/G/B,
+                  sample<i>.normal.X/Y/Z, sample<i>.depth.Z for i < S (S
+                  independent 1-spp samples); R,G,B is then their mean
   ref_NNNN.exr    R,G,B reference with --spp-ref samples per pixel
   meta.json       seeds, cameras, scene, conventions (written last: a folder
                   without it is incomplete and is rendered again)
@@ -75,6 +78,12 @@ def render(
         bool, typer.Option("--float", help="Store float32 instead of float16.")
     ] = False,
     max_depth: Annotated[int, typer.Option("--max-depth", help="Path tracer max depth.")] = 6,
+    samples: Annotated[
+        int,
+        typer.Option(
+            "--samples", help="Write S per-sample layers (S 1-spp samples; color = their mean)."
+        ),
+    ] = 0,
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Re-render complete ones.")
     ] = False,
@@ -90,6 +99,7 @@ def render(
     _check_range("--spp-ref", spp_ref, 1, 1 << 20)
     _check_range("--start-index", start_index, 0, 999_999)
     _check_range("--max-depth", max_depth, 1, 64)
+    _check_range("--samples", samples, 0, 64)
     if variant not in SUPPORTED_VARIANTS:
         raise typer.BadParameter(f"--variant must be one of {SUPPORTED_VARIANTS}, got {variant!r}")
     if out_dir.exists() and not out_dir.is_dir():
@@ -104,6 +114,7 @@ def render(
         spp_ref=spp_ref,
         max_depth=max_depth,
         half=not float32,
+        samples=samples,
     )
     indices = range(start_index, start_index + sequences)
     todo = [

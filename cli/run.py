@@ -319,6 +319,14 @@ def run(
             "--learn-every", min=1, help="Online learning: update on every N-th frame only."
         ),
     ] = 1,
+    kernel_size: Annotated[
+        int | None,
+        typer.Option(
+            "--kernel-size",
+            help="Run-time kernel size of models that offer one (odd; e.g. demo:affinity, "
+            "trained at 13: 7..19 without retraining).",
+        ),
+    ] = None,
 ) -> None:
     """Denoise an EXR frame sequence with a real-time denoiser, frame after frame.
 
@@ -364,6 +372,7 @@ def run(
             providers=provider,
             learn=online,
             learn_every=learn_every,
+            options={"kernel_size": kernel_size} if kernel_size is not None else None,
         )
         reports = []
         for job in jobs:

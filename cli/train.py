@@ -48,6 +48,16 @@ def _parse_config(text: str | None) -> dict | None:
     return data
 
 
+def _parse_counts(text: str) -> tuple[int, ...]:
+    try:
+        counts = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        counts = ()
+    if not counts or min(counts) < 1:
+        fail(f"--samples: expected counts >= 1 such as 1,2,4, got {text!r}")
+    return counts
+
+
 def _parse_range(text: str) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in text.split(","))
@@ -92,11 +102,21 @@ def train_command(
         int, typer.Option(min=0, help="Checkpoint every N steps (0: only at the end).")
     ] = 500,
     threads: Annotated[int, typer.Option(min=1, help="torch intra-op threads.")] = 2,
+    device: Annotated[
+        str,
+        typer.Option(help="Where to train: cpu, cuda or cuda:N (the model and every batch)."),
+    ] = "cpu",
     config: Annotated[
         str | None,
         typer.Option(help="Model config overrides: a JSON object or a JSON file."),
     ] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    samples: Annotated[
+        str | None,
+        typer.Option(
+            help="Per-sample models: sample counts S drawn per batch, e.g. 1,2,4 (default: all)."
+        ),
+    ] = None,
     version: VersionOption = False,
 ) -> None:
     """Train a denoiser on sequences in the canonical EXR layout and write a checkpoint.
@@ -114,6 +134,7 @@ def train_command(
     """
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
+    sample_counts = _parse_counts(samples) if samples else ()
     with user_errors(extra="train"):
         from rtdenoise.models.train import TrainSettings, train
 
@@ -129,6 +150,8 @@ def train_command(
             flips=flips,
             save_every=save_every,
             threads=threads,
+            sample_counts=sample_counts,
+            device=device,
         )
         result = train(
             sequences,

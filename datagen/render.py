@@ -4,6 +4,12 @@ One folder per sequence:
 - `frame_NNNN.exr`: `R,G,B` noisy 1-spp radiance, `colorB.R/G/B` an independent
   1-spp estimate (other seed), `albedo.R/G/B`, `normal.X/Y/Z`, `depth.Z`,
   `motion.X/Y` (conventions in `features.py`);
+- with `RenderConfig.samples` = S >= 1: S independent 1-spp samples per pixel, each a
+  miniature canonical frame `sample<i>.R/G/B` (radiance), `sample<i>.albedo.R/G/B`,
+  `sample<i>.normal.X/Y/Z`, `sample<i>.depth.Z` (runtime/samples.py), its features taken at
+  the sample's own jittered position by the same ray as its radiance (`aov` integrator
+  wrapping `path`); then `R,G,B` is the mean of the S samples and `colorB` an independent
+  S-spp estimate;
 - `ref_NNNN.exr`: `R,G,B` high-spp reference of the same frame;
 - `meta.json` (written last, atomically: a sequence without it is incomplete).
 
@@ -26,6 +32,7 @@ import numpy as np
 
 from ..runtime.atomic import write_text_atomic
 from ..runtime.exr import write_exr
+from ..runtime.samples import DEFAULT_SAMPLE_FEATURES, sample_channels
 from .camera import Camera, orbit_path
 from .features import BACKGROUND_ALBEDO, BACKGROUND_DEPTH, canonical_features, override_albedo
 from .scene import ID_SCALE, build_scene, conductor_f0, random_scene, shape_materials
@@ -45,6 +52,7 @@ class RenderConfig:
     max_depth: int = 6
     half: bool = True
     pilot_spp: int = 16
+    samples: int = 0  # S >= 1: write S per-sample layers, color = their mean (S spp)
 
 
 def derive_seed(*values: int) -> int:
@@ -89,9 +97,15 @@ def _radiance(
     return np.array(img, dtype=np.float32)[..., :3], int(sensor.sampler().sample_count())
 
 
-def _aovs(mi, scene, integrator, cam: Camera) -> dict[str, np.ndarray]:
-    sensor = _sensor(mi, cam, {"type": "stratified", "sample_count": 1, "jitter": False})
-    mi.render(scene, sensor=sensor, integrator=integrator, spp=1)
+def _aovs(mi, scene, integrator, cam: Camera, seed: int | None = None) -> dict[str, np.ndarray]:
+    """The film's layers after one 1-spp pass: at pixel centres (seed None), else at the
+    jittered positions of an `independent` sampler with `seed` (same seed, same rays)."""
+    if seed is None:
+        sampler = {"type": "stratified", "sample_count": 1, "jitter": False}
+    else:
+        sampler = {"type": "independent", "sample_count": 1}
+    sensor = _sensor(mi, cam, sampler)
+    mi.render(scene, sensor=sensor, integrator=integrator, spp=1, seed=seed or 0)
     parts = dict(sensor.film().bitmap(raw=False).split())
     return {k: np.array(v, dtype=np.float32) for k, v in parts.items()}
 
@@ -135,6 +149,37 @@ def _rgb(prefix: str, img: np.ndarray) -> dict[str, np.ndarray]:
     return {f"{prefix}{c}": img[..., i] for i, c in enumerate("RGB")}
 
 
+def _sample_layers(
+    mi, scenes, integrators, alb_table, cam: Camera, seeds: list[int], exposure: float, limit
+) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
+    """Per-sample layers of one frame (runtime/samples.py names), the mean radiance and the
+    count of replaced non-finite values. Sample i: one 1-spp pass of `aov` wrapping `path`
+    (radiance and features from the same ray) and an id pass with the same seed (same ray)."""
+    mi_scene, id_scene = scenes
+    aov_path, aov_id = integrators
+    layers: dict[str, np.ndarray] = {}
+    total = None
+    replaced = 0
+    for i, seed in enumerate(seeds):
+        a = _aovs(mi, mi_scene, aov_path, cam, seed)
+        radiance, n = sanitize(a["<root>"][..., :3] * exposure, limit)
+        replaced += n
+        total = radiance if total is None else total + radiance
+        ids = decode_ids(_aovs(mi, id_scene, aov_id, cam, seed)["id"][..., 0])
+        albedo = override_albedo(a["albedo"], ids, alb_table)
+        feats = canonical_features(albedo, a["nn"], a["pp"], ids > 0, cam, None)
+        per_feature = {
+            "color": [radiance[..., c] for c in range(3)],
+            "albedo": [feats[f"albedo.{c}"] for c in "RGB"],
+            "normal": [feats[f"normal.{c}"] for c in "XYZ"],
+            "depth": [feats["depth.Z"]],
+        }
+        for feature in DEFAULT_SAMPLE_FEATURES:
+            for name, plane in zip(sample_channels(i, feature), per_feature[feature], strict=True):
+                layers[name] = plane
+    return layers, total / len(seeds), replaced
+
+
 def render_sequence(
     out_dir: str | os.PathLike,
     scene_seed: int,
@@ -170,6 +215,10 @@ def render_sequence(
     path = mi.load_dict({"type": "path", "max_depth": cfg.max_depth})
     aov = mi.load_dict({"type": "aov", "aovs": _AOVS})
     aov_id = mi.load_dict({"type": "aov", "aovs": "id:albedo"})
+    aov_path = mi.load_dict(
+        {"type": "aov", "aovs": _AOVS, "integrator": {"type": "path", "max_depth": cfg.max_depth}}
+    )
+    spp = max(1, cfg.samples)
 
     pilot, _ = _radiance(
         mi, mi_scene, path, cams[0], cfg.pilot_spp, derive_seed(scene_seed, 2), "independent"
@@ -182,7 +231,19 @@ def render_sequence(
     for t, cam in enumerate(cams):
         s_a, s_b, s_ref = (derive_seed(scene_seed, 100 + t, k) for k in range(3))
         seeds.append({"color": s_a, "colorB": s_b, "ref": s_ref})
-        imgs = [_radiance(mi, mi_scene, path, cam, 1, s, "independent")[0] for s in (s_a, s_b)]
+        sample_layers: dict[str, np.ndarray] = {}
+        if cfg.samples:  # color = the mean of S 1-spp samples, each written as layers
+            sample_seeds = [derive_seed(scene_seed, 100 + t, 10 + i) for i in range(cfg.samples)]
+            seeds[-1]["samples"] = sample_seeds
+            sample_layers, noisy, n = _sample_layers(
+                mi, (mi_scene, id_scene), (aov_path, aov_id), alb_table, cam, sample_seeds,
+                exposure, limit,
+            )  # fmt: skip
+            replaced += n
+            imgs = []
+        else:
+            imgs = [_radiance(mi, mi_scene, path, cam, 1, s_a, "independent")[0]]
+        imgs.append(_radiance(mi, mi_scene, path, cam, spp, s_b, "independent")[0])
         ref_img, spp_ref = _radiance(mi, mi_scene, path, cam, cfg.spp_ref, s_ref, "multijitter")
         imgs.append(ref_img)
         clean = []
@@ -190,14 +251,17 @@ def render_sequence(
             x, n = sanitize(img * exposure, limit)
             replaced += n
             clean.append(x)
-        noisy, noisy_b, ref = clean
+        if cfg.samples:
+            noisy_b, ref = clean
+        else:
+            noisy, noisy_b, ref = clean
         a = _aovs(mi, mi_scene, aov, cam)
         ids = decode_ids(_aovs(mi, id_scene, aov_id, cam)["id"][..., 0])
         hit = ids > 0
         albedo = override_albedo(a["albedo"], ids, alb_table)
         prev = cams[t - 1] if t > 0 else None
         feats = canonical_features(albedo, a["nn"], a["pp"], hit, cam, prev)
-        channels = {**_rgb("", noisy), **_rgb("colorB.", noisy_b), **feats}
+        channels = {**_rgb("", noisy), **_rgb("colorB.", noisy_b), **feats, **sample_layers}
         write_exr(out / f"frame_{t:04d}.exr", channels, half=cfg.half)
         write_exr(out / f"ref_{t:04d}.exr", _rgb("", ref), half=cfg.half)
         if on_frame is not None:
@@ -211,7 +275,8 @@ def render_sequence(
         "scene_seed": int(scene_seed),
         "frame_count": len(cams),
         "resolution": [cfg.width, cfg.height],
-        "spp": {"color": 1, "colorB": 1, "ref": spp_ref, "exposure_pilot": cfg.pilot_spp},
+        "spp": {"color": spp, "colorB": spp, "ref": spp_ref, "exposure_pilot": cfg.pilot_spp},
+        "samples": cfg.samples,
         "storage": "float16" if cfg.half else "float32",
         "renderer": {
             "name": "mitsuba",
@@ -230,7 +295,10 @@ def render_sequence(
         ],
         "camera_model": "pinhole, fov in degrees along x (Mitsuba perspective, fov_axis=x)",
         "conventions": {
-            "color": "linear HDR radiance, 1 spp, times `exposure`; colorB: independent seed",
+            "color": f"linear HDR radiance, {spp} spp, times `exposure`; colorB: independent "
+            "seed" + ("; color is the mean of the sample layers" if cfg.samples else ""),
+            "samples": "sample<i>.R/G/B radiance (times `exposure`), sample<i>.albedo / .normal / "
+            ".depth as the pixel buffers, at the sample's own jittered position",
             "albedo": "aov albedo clamped to [0, 1]; conductors: RGB reflectance at normal "
             f"incidence; emitters 1; background {BACKGROUND_ALBEDO}",
             "normal": "camera space, x right, y up, z towards the camera, unit, facing the "

@@ -24,7 +24,9 @@ import torch
 from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.models.ops import TorchOp, observe_calls
+from rtdenoise.runtime.contract import SAMPLES
 from rtdenoise.runtime.denoiser import Denoiser
+from rtdenoise.runtime.samples import sample_features_of
 
 from .deploy import to_deploy
 from .onnx_export import export_model
@@ -107,7 +109,8 @@ def benchmark_model(
         torch.set_num_threads(threads)
     model = model.eval()
     deployed = to_deploy(model)
-    frames = synthetic_frames(model.inputs, repeats + 1, *size)
+    features = sample_features_of(model.config()) if SAMPLES in model.inputs else ()
+    frames = synthetic_frames(model.inputs, repeats + 1, *size, sample_features=features)
     say("exporting")
     onnx_bytes = export_model(model).SerializeToString()
 

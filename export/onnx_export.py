@@ -21,7 +21,8 @@ from torch.export import Dim
 
 from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
 from rtdenoise.models.ops import exporting
-from rtdenoise.runtime.contract import Declaration
+from rtdenoise.runtime.contract import SAMPLES, Declaration
+from rtdenoise.runtime.samples import feature_channels, sample_features_of
 
 from . import ops as onnx_ops
 from .conv_widths import pad_conv_widths
@@ -94,9 +95,20 @@ def example_size(pad_multiple: int) -> tuple[int, int]:
     return h, h + pad_multiple
 
 
+EXAMPLE_SAMPLES = 2  # S of the traced `samples` buffer (S is a dynamic dim of the export)
+
+
+def example_buffer(model: DenoiserModel, name: str, h: int, w: int, gen=None) -> torch.Tensor:
+    """A random (1, C, H, W) buffer, or (1, S, C, H, W) for `samples` (C from the config)."""
+    if name == SAMPLES:
+        c = feature_channels(sample_features_of(model.config()))
+        return torch.rand(1, EXAMPLE_SAMPLES, c, h, w, generator=gen)
+    return torch.rand(1, BUFFER_CHANNELS[name], h, w, generator=gen)
+
+
 def example_inputs(model: DenoiserModel, h: int, w: int) -> tuple[torch.Tensor, ...]:
     gen = torch.Generator().manual_seed(0)
-    buffers = [torch.rand(1, BUFFER_CHANNELS[name], h, w, generator=gen) for name in model.inputs]
+    buffers = [example_buffer(model, name, h, w, gen) for name in model.inputs]
     state = model.initial_state(1, h, w)
     return (*buffers, torch.tensor(1.0), *(state[s.name] for s in model.state_specs))
 
@@ -113,12 +125,38 @@ def _dynamic_shapes(model: DenoiserModel) -> tuple:
             raise ValueError(
                 f"state {spec.name!r}: scale {spec.scale} does not divide pad_multiple {pad}"
             )
-    buffers = [{2: scaled(hb, pad), 3: scaled(wb, pad)} for _ in model.inputs]
+    samples = Dim("samples", min=1, max=1024)
+    buffers = [
+        {1: samples, 3: scaled(hb, pad), 4: scaled(wb, pad)}
+        if name == SAMPLES
+        else {2: scaled(hb, pad), 3: scaled(wb, pad)}
+        for name in model.inputs
+    ]
     state = [
         None if s.size else {2: scaled(hb, pad // s.scale), 3: scaled(wb, pad // s.scale)}
         for s in model.state_specs
     ]
     return (*buffers, None, *state)
+
+
+def expose_options(proto: onnx.ModelProto, declared: Declaration) -> None:
+    """Make each declared run-time option (the model buffer `option_<name>`, an initializer
+    of the export) the overridable initializer `option.<name>`: renamed, and a graph input."""
+    graph = proto.graph
+    for option in declared.options:
+        old = f"model.option_{option.name}"
+        found = [t for t in graph.initializer if t.name == old]
+        if not found:
+            raise ValueError(
+                f"run-time option {option.name!r}: the export has no initializer {old!r} (the "
+                f"model must pass its buffer option_{option.name} to the graph unchanged)"
+            )
+        found[0].name = option.input_name
+        for node in graph.node:
+            node.input[:] = [option.input_name if i == old else i for i in node.input]
+        graph.input.append(
+            onnx.helper.make_tensor_value_info(option.input_name, onnx.TensorProto.FLOAT, [])
+        )
 
 
 def export_model(model: DenoiserModel) -> onnx.ModelProto:
@@ -135,6 +173,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
         output_names=wrapper.declared.output_names(),
     )
     pad_conv_widths(proto)  # same function; ORT's blocked conv layout (conv_widths.py)
+    expose_options(proto, wrapper.declared)
     del proto.metadata_props[:]
     for key, value in wrapper.declared.metadata().items():
         proto.metadata_props.add(key=key, value=value)

@@ -39,22 +39,28 @@ def validation_frames(
     model: DenoiserModel, n: int, size: int = 64
 ) -> tuple[list[dict[str, np.ndarray]], str]:
     """Frames to validate on: a bundled rendered sequence when one is shipped, else synthetic."""
+    from rtdenoise.runtime.contract import SAMPLES
+    from rtdenoise.runtime.samples import sample_features_of
     from rtdenoise.runtime.sequence import find_frames, read_frame
     from rtdenoise.shipped import sample_sequences
 
     pad = model.pad_multiple
     h = w = max(pad, size - size % pad)
+    features = sample_features_of(model.config()) if SAMPLES in model.inputs else None
     for seq in sample_sequences():
         paths = find_frames(seq)
-        frames = [read_frame(p).buffers for p in paths[:n]]
+        frames = [read_frame(p, sample_features=features).buffers for p in paths[:n]]
         if len(frames) < n or not all(k in frames[0] for k in model.inputs):
             continue
         fh, fw = frames[0]["color"].shape[-2:]
         if fh < h or fw < w:
             continue
-        cropped = [{k: np.ascontiguousarray(f[k][:, :h, :w]) for k in model.inputs} for f in frames]
+        cropped = [
+            {k: np.ascontiguousarray(f[k][..., :h, :w]) for k in model.inputs} for f in frames
+        ]
         return cropped, f"bundled sequence {seq.name}"
-    return synthetic_frames(model.inputs, n, h, w), "synthetic"
+    synthetic = synthetic_frames(model.inputs, n, h, w, sample_features=features or ())
+    return synthetic, "synthetic"
 
 
 def count_nodes(proto: onnx.ModelProto) -> tuple[int, dict[str, int]]:

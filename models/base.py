@@ -19,7 +19,7 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
-from rtdenoise.runtime.contract import BUFFER_CHANNELS, Declaration, StateSpec
+from rtdenoise.runtime.contract import BUFFER_CHANNELS, Declaration, RuntimeOption, StateSpec
 
 from .losses import sequence_loss
 
@@ -28,6 +28,7 @@ __all__ = [
     "FAMILIES",
     "DenoiserModel",
     "FamilyConfig",
+    "RuntimeOption",
     "StateSpec",
     "register_family",
 ]
@@ -101,6 +102,10 @@ class DenoiserModel(nn.Module):
     state_specs: tuple[StateSpec, ...] = ()
     pad_multiple: int = 1
     input_note: str = ""
+    # Scalars a runtime may change per session (e.g. a kernel size): each is the float32
+    # buffer `option_<name>` of the model, exported as the overridable initializer
+    # `option.<name>` (runtime.contract.RuntimeOption).
+    runtime_options: tuple[RuntimeOption, ...] = ()
     cfg: FamilyConfig
 
     def forward(
@@ -156,6 +161,7 @@ class DenoiserModel(nn.Module):
             state=tuple(self.state_specs),
             pad_multiple=int(self.pad_multiple),
             note=self.input_note,
+            options=tuple(self.runtime_options),
         )
 
 

@@ -15,27 +15,36 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from rtdenoise.runtime.contract import BUFFER_RANK
+
 from .base import DenoiserModel
+from .device import model_device
 
 Frame = Mapping[str, "torch.Tensor | np.ndarray"]
 
 
 def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
-    """Replicate-pad the last two axes of (N, C, H, W) `x` up to multiples of `multiple`."""
+    """Replicate-pad the last two axes of (N, C, H, W) `x` (or (N, S, C, H, W)) up to
+    multiples of `multiple`."""
     h, w = x.shape[-2:]
     ph, pw = (-h) % multiple, (-w) % multiple
-    return F.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+    if not (ph or pw):
+        return x
+    flat = x.reshape(-1, *x.shape[-3:])  # replicate padding takes 4-D tensors
+    return F.pad(flat, (0, pw, 0, ph), mode="replicate").reshape(*x.shape[:-2], h + ph, w + pw)
 
 
 class FrameLoop:
     """Stateful frame-by-frame driver of a `DenoiserModel` (see the module docstring).
 
     Frames are dicts name -> (N, C, H, W) tensors, or (C, H, W) tensors / numpy arrays for
-    N = 1; only the model's `inputs` are read. Gradients flow unless the caller disables them.
+    N = 1 (the rank-5 `samples`: (N, S, C, H, W) or (S, C, H, W)); only the model's `inputs`
+    are read, and moved to the model's device. Gradients flow unless the caller disables them.
     """
 
     def __init__(self, model: DenoiserModel) -> None:
         self.model = model
+        self.device = model_device(model)
         self.state: dict[str, torch.Tensor] | None = None
         self._key: tuple | None = None
 
@@ -48,14 +57,15 @@ class FrameLoop:
         for name in self.model.inputs:
             x = frame[name]
             x = torch.from_numpy(np.ascontiguousarray(x)) if isinstance(x, np.ndarray) else x
-            out[name] = x if x.dim() == 4 else x.unsqueeze(0)
+            x = x.to(self.device, non_blocking=True)
+            out[name] = x if x.dim() == BUFFER_RANK.get(name, 4) else x.unsqueeze(0)
         return out
 
     def __call__(self, frame: Frame, reset: bool = False) -> torch.Tensor:
         """Denoise one frame; returns (N, 3, H, W) at the frame's own size."""
         buffers = self._tensors(frame)
         first = buffers[self.model.inputs[0]]
-        (n, _, h, w), device = first.shape, first.device
+        (n, (h, w)), device = (first.shape[0], first.shape[-2:]), first.device
         m = self.model.pad_multiple
         key = (n, h, w, device)
         if reset or self.state is None or key != self._key:

@@ -21,11 +21,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from rtdenoise.runtime.contract import SAMPLES
 from rtdenoise.runtime.metrics import psnr
+from rtdenoise.runtime.samples import sample_features_of
 
 from .base import DenoiserModel
 from .checkpoint import CheckpointError, load_training_state, save_checkpoint
 from .data import ClipSampler, SequenceData, load_sequences
+from .device import torch_device
 from .frame_loop import FrameLoop, unroll
 from .registry import build_model
 
@@ -46,6 +49,8 @@ class TrainSettings:
     save_every: int = 500  # steps between checkpoints (0: only at the end)
     log_every: int = 50  # window of the loss history kept in meta
     threads: int | None = 2  # torch intra-op threads (None: leave torch's default)
+    sample_counts: tuple[int, ...] = ()  # per-sample models: S per batch drawn from these
+    device: str = "cpu"  # torch device of the model and batches: cpu, cuda, cuda:N
 
 
 @dataclass
@@ -57,6 +62,18 @@ class TrainResult:
     losses: list[float] = field(default_factory=list)
     validation: dict | None = None
     seconds_per_step: float = 0.0
+
+
+def _to_cpu(obj):
+    """`obj` (nested dicts / lists of tensors, an optimizer state) with every tensor on the CPU,
+    so a checkpoint written on a GPU loads anywhere."""
+    if isinstance(obj, torch.Tensor):
+        return obj.cpu()
+    if isinstance(obj, dict):
+        return {k: _to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return type(obj)(_to_cpu(v) for v in obj)
+    return obj
 
 
 def seed_everything(seed: int) -> np.random.Generator:
@@ -96,7 +113,7 @@ def evaluate(model: DenoiserModel, sequences: Sequence[SequenceData]) -> dict:
     per_seq = []
     for seq in sequences:
         frames = ({n: a[i] for n, a in seq.buffers.items()} for i in range(seq.frames))
-        outputs = [out[0].numpy() for out in loop.run(frames)]
+        outputs = [out[0].cpu().numpy() for out in loop.run(frames)]
         scores = [psnr(out, ref) for out, ref in zip(outputs, seq.reference, strict=True)]
         inputs = [psnr(c, ref) for c, ref in zip(seq.buffers["color"], seq.reference, strict=True)]
         per_seq.append(
@@ -169,6 +186,7 @@ def train(
     `settings.steps`. Returns the per-step losses of this call and validation metrics.
     """
     s = settings or TrainSettings()
+    device = torch_device(s.device)
     if s.threads:
         torch.set_num_threads(int(s.threads))
     output = Path(output)
@@ -183,9 +201,11 @@ def train(
             )
     else:
         model = build_model(family, model_config)
-    model.train()
-    sequences = load_sequences(data_dirs, model.inputs)
-    val_sequences = load_sequences(val_dirs, model.inputs) if val_dirs else []
+    model.to(device).train()
+    features = sample_features_of(model.config()) if SAMPLES in model.inputs else None
+    sequences = load_sequences(data_dirs, model.inputs, features)
+    val_buffers = tuple(dict.fromkeys((*model.inputs, "color")))  # + the noisy input's PSNR
+    val_sequences = load_sequences(val_dirs, val_buffers, features) if val_dirs else []
     sampler = ClipSampler(
         sequences,
         rng,
@@ -195,6 +215,8 @@ def train(
         multiple=model.pad_multiple,
         flips=s.flips,
         brightness=s.brightness,
+        sample_features=features or (),
+        sample_counts=s.sample_counts,
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=s.lr)
     step = 0
@@ -214,14 +236,22 @@ def train(
             "data": [str(Path(d)) for d in data_dirs],
             "val": [str(Path(d)) for d in val_dirs],
             "seed": s.seed,
-            "settings": {**asdict(s), "brightness": list(s.brightness)},
+            "settings": {
+                **asdict(s),
+                "brightness": list(s.brightness),
+                "sample_counts": list(s.sample_counts),
+            },
             "command": command if command is not None else " ".join(sys.argv),
             "torch": str(torch.__version__),
             "resumed_from": str(resume) if resume is not None else meta_in.get("resumed_from"),
         }
         if validation is not None:
             meta["validation"] = validation
-        train_blob = {"optimizer": optimizer.state_dict(), "step": step, "rng": rng_state(rng)}
+        train_blob = {
+            "optimizer": _to_cpu(optimizer.state_dict()),
+            "step": step,
+            "rng": rng_state(rng),
+        }
         save_checkpoint(output, model, meta, train=train_blob)
 
     losses: list[float] = []
@@ -231,8 +261,9 @@ def train(
     with _Progress(progress, s.steps, step) as bar:
         while step < s.steps:
             batch = sampler.sample()
-            outputs = unroll(model, batch.buffers)
-            loss = model.loss(outputs, batch.reference, s.temporal_weight)
+            buffers = {k: v.to(device, non_blocking=True) for k, v in batch.buffers.items()}
+            outputs = unroll(model, buffers)
+            loss = model.loss(outputs, batch.reference.to(device), s.temporal_weight)
             if not torch.isfinite(loss):
                 raise RuntimeError(
                     f"non-finite training loss at step {step + 1}; weights not updated "

@@ -65,14 +65,18 @@ def load_backend(
     providers: Sequence[str] | None = None,
     learn: bool = True,
     learn_every: int = 1,
+    options: Mapping[str, float] | None = None,
 ) -> Backend:
     """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
 
     portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
     providers: ONNX Runtime execution providers in order of preference (None or empty: CPU).
     learn, learn_every: online learning of a model that learns while it runs (Denoiser).
+    options: values of the model's run-time options (e.g. {"kernel_size": 7}).
     """
     if model.strip().lower() == "none":
+        if options:
+            raise InputError(f"--model none has no run-time options ({', '.join(options)})")
         return PassThrough()
     try:
         from .denoiser import Denoiser
@@ -85,4 +89,5 @@ def load_backend(
         providers=list(providers or []) or None,
         learn=learn,
         learn_every=learn_every,
+        overrides=options,
     )

@@ -8,6 +8,8 @@ outputs `output` ([1, 3, H, W]) plus `state_next.<name>` for every state input. 
 
 - `BUFFER_CHANNELS`: the canonical frame buffers (the one table; `samples` is rank 5);
 - `StateSpec`: one temporal tensor, as models declare it and the metadata lists it;
+- `RuntimeOption`: a scalar a runtime may change per session (optional key `rtdenoise.options`,
+  the overridable initializer `option.<name>`), e.g. a kernel size;
 - `Declaration`: what a model declares (family, config, buffers, state, pad multiple, note):
   its `metadata()` is what the exporter writes, its graph input/output names the wrapper's;
 - `parse_contract` / `contract_from_session`: check metadata + graph I/O, give a `Contract`
@@ -35,12 +37,14 @@ KEY_INPUTS = PREFIX + "inputs"
 KEY_STATE = PREFIX + "state"
 KEY_PAD = PREFIX + "pad_multiple"
 KEY_ONLINE = PREFIX + "online"
+KEY_OPTIONS = PREFIX + "options"
 REQUIRED_KEYS = (KEY_CONTRACT, KEY_FAMILY, KEY_CONFIG, KEY_INPUTS, KEY_STATE, KEY_PAD)
 
 RESET = "reset"
 OUTPUT = "output"
 STATE_IN = "state."
 STATE_OUT = "state_next."
+OPTION = "option."
 FLOAT = "tensor(float)"
 
 # The canonical per-pixel frame buffers, (C, H, W) each: name -> C.
@@ -113,6 +117,53 @@ class StateSpec:
 
 
 @dataclass(frozen=True)
+class RuntimeOption:
+    """A float32 scalar a model lets the runtime change per session, e.g. a kernel size.
+
+    In the file it is the initializer `option.<name>` that is also a graph input (ONNX Runtime:
+    an overridable initializer), so a host that does not know it runs the model with `default`.
+    `odd`: the value must be an odd integer; `minimum` / `maximum`: its range.
+    """
+
+    name: str
+    default: float
+    doc: str = ""
+    minimum: float | None = None
+    maximum: float | None = None
+    odd: bool = False
+
+    @property
+    def input_name(self) -> str:
+        return OPTION + self.name
+
+    def check(self, value: float) -> float:
+        """`value` as a float; InputError naming the option unless the model accepts it."""
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise InputError(f"option {self.name!r} needs a number, got {value!r}") from None
+        bad = v != v or (self.odd and (v != int(v) or int(v) % 2 == 0))
+        bad = bad or (self.minimum is not None and v < self.minimum)
+        bad = bad or (self.maximum is not None and v > self.maximum)
+        if bad:
+            lo = "-inf" if self.minimum is None else f"{self.minimum:g}"
+            hi = "inf" if self.maximum is None else f"{self.maximum:g}"
+            kind = "an odd integer" if self.odd else "a number"
+            raise InputError(f"option {self.name!r} must be {kind} in [{lo}, {hi}], got {value!r}")
+        return v
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "default": self.default,
+            "doc": self.doc,
+            "minimum": self.minimum,
+            "maximum": self.maximum,
+            "odd": self.odd,
+        }
+
+
+@dataclass(frozen=True)
 class Declaration:
     """What a model declares under the contract; `metadata()` is what an export writes."""
 
@@ -123,6 +174,7 @@ class Declaration:
     pad_multiple: int
     note: str = ""
     online: Mapping[str, Any] | None = None  # `rtdenoise.online`: how the model learns
+    options: tuple[RuntimeOption, ...] = ()
 
     def input_names(self) -> list[str]:
         """Graph inputs in order: buffers, `reset`, then `state.<name>`."""
@@ -141,7 +193,15 @@ class Declaration:
             KEY_INPUTS: json.dumps({"buffers": list(self.buffers), "note": self.note}),
             KEY_STATE: json.dumps([s.to_json() for s in self.state]),
             KEY_PAD: str(self.pad_multiple),
-        } | ({KEY_ONLINE: json.dumps(dict(self.online))} if self.online else {})
+        } | self._optional_metadata()
+
+    def _optional_metadata(self) -> dict[str, str]:
+        extra = {}
+        if self.online:
+            extra[KEY_ONLINE] = json.dumps(dict(self.online))
+        if self.options:
+            extra[KEY_OPTIONS] = json.dumps([o.to_json() for o in self.options])
+        return extra
 
 
 @dataclass(frozen=True)
@@ -175,6 +235,7 @@ class Contract:
     output_shape: tuple[Dim, ...]
     online: dict[str, Any] | None = None  # parsed `rtdenoise.online` (docs/contract.md)
     metadata: dict[str, str] = field(default_factory=dict)
+    options: tuple[RuntimeOption, ...] = ()
 
     @property
     def buffer_names(self) -> tuple[str, ...]:
@@ -191,6 +252,7 @@ class Contract:
             self.pad_multiple,
             self.note,
             self.online,
+            self.options,
         )
 
 
@@ -249,6 +311,7 @@ def parse_contract(
     if pad < 1:
         raise fail(f"{KEY_PAD} must be >= 1, got {pad}")
     state = _parse_state(load(KEY_STATE), pad, fail)
+    options = _parse_options(load(KEY_OPTIONS), fail) if KEY_OPTIONS in metadata else ()
 
     graph_in = {t.name: t for t in inputs}
     graph_out = {t.name: t for t in outputs}
@@ -312,6 +375,7 @@ def parse_contract(
         output_shape=tuple(graph_out[OUTPUT].shape),
         online=_parse_online(load(KEY_ONLINE), state, fail) if KEY_ONLINE in metadata else None,
         metadata=dict(metadata),
+        options=options,
     )
 
 
@@ -336,6 +400,31 @@ def _parse_state(raw: Any, pad: int, fail) -> tuple[StateSpec, ...]:
     if len({s.name for s in specs}) != len(specs):
         raise fail(f"{KEY_STATE} lists a state name twice")
     return tuple(specs)
+
+
+def _parse_options(raw: Any, fail) -> tuple[RuntimeOption, ...]:
+    if not isinstance(raw, list):
+        raise fail(f"{KEY_OPTIONS} must be a JSON list of {{name, default, ...}}")
+    options = []
+    for item in raw:
+        name = item.get("name") if isinstance(item, dict) else None
+        if not isinstance(name, str) or not name:
+            raise fail(f"{KEY_OPTIONS} entry {item!r} needs a non-empty 'name'")
+        try:
+            option = RuntimeOption(
+                name=name,
+                default=float(item["default"]),
+                doc=str(item.get("doc", "")),
+                minimum=None if item.get("minimum") is None else float(item["minimum"]),
+                maximum=None if item.get("maximum") is None else float(item["maximum"]),
+                odd=bool(item.get("odd", False)),
+            )
+        except (KeyError, TypeError, ValueError):
+            raise fail(f"{KEY_OPTIONS} entry {name!r} needs a numeric 'default'") from None
+        options.append(option)
+    if len({o.name for o in options}) != len(options):
+        raise fail(f"{KEY_OPTIONS} lists an option twice")
+    return tuple(options)
 
 
 def _parse_online(raw: Any, state: tuple[StateSpec, ...], fail) -> dict[str, Any]:

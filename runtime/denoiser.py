@@ -41,6 +41,7 @@ import numpy as np
 import onnxruntime as ort
 
 from .contract import (
+    OPTION,
     OUTPUT,
     RESET,
     BufferSpec,
@@ -259,6 +260,8 @@ class Denoiser:
     learn, learn_every: for a model that learns while it runs (metadata `rtdenoise.online`,
         docs/contract.md): take its update step on frames 0, N, 2N, ... of each history
         (N = learn_every), none with learn=False (weights frozen). Ignored by other models.
+    overrides: values of the model's run-time options (`contract.options`, e.g.
+        {"kernel_size": 7}), fed as its overridable initializers `option.<name>` every frame.
     """
 
     def __init__(
@@ -272,6 +275,7 @@ class Denoiser:
         io_binding: bool = True,
         learn: bool = True,
         learn_every: int = 1,
+        overrides: Mapping[str, float] | None = None,
     ) -> None:
         if isinstance(model, (bytes, bytearray)):
             self.source, payload = "<model bytes>", bytes(model)
@@ -280,6 +284,9 @@ class Denoiser:
             self.source, payload = str(path), str(path)
         check_external_data(payload if isinstance(payload, bytes) else path)  # inside its folder
         options = ort.SessionOptions()
+        # Warnings at load are about graph internals (e.g. run-time option initializers that
+        # are graph inputs by design: "will not be treated as constant"); errors still show.
+        options.log_severity_level = 3
         if threads is not None:
             if threads < 1:
                 raise InputError(f"threads must be >= 1, got {threads}")
@@ -307,6 +314,7 @@ class Denoiser:
                     f"Runtime's log); the session would run on {', '.join(got)}"
                 )
         self._contract: Contract = contract_from_session(self._session, source=self.source)
+        self._option_values = self._check_overrides(overrides or {})
         self._device = self._state_device(got)
         self._binding = self._session.io_binding() if io_binding else None
         self._static_hw = self._graph_static_hw()
@@ -365,6 +373,12 @@ class Denoiser:
     @property
     def pad_multiple(self) -> int:
         return self._contract.pad_multiple
+
+    @property
+    def options(self) -> dict[str, float]:
+        """Every run-time option of the model with the value this session uses."""
+        values = {o.name: o.default for o in self._contract.options}
+        return values | {name: float(v) for name, (v, _) in self._option_values.items()}
 
     @property
     def frame_index(self) -> int:
@@ -642,6 +656,8 @@ class Denoiser:
         inputs = dict(feeds)
         if self._contract.has_reset:
             inputs[RESET] = _RESET[first]
+        for name, (value, _) in self._option_values.items():
+            inputs[OPTION + name] = value
         for s in self.state_specs:
             inputs[s.input_name] = self._state[s.name]
         names = [OUTPUT] + [s.output_name for s in self.state_specs]
@@ -670,6 +686,8 @@ class Denoiser:
             io.bind_cpu_input(name, array)
         if self._contract.has_reset:
             io.bind_cpu_input(RESET, _RESET[first])
+        for name, (_, value) in self._option_values.items():
+            io.bind_ortvalue_input(OPTION + name, value)  # bind_cpu_input refuses initializers
         for s in self.state_specs:
             current, following = self._slots[s.name]
             io.bind_ortvalue_input(s.input_name, current.value)
@@ -707,6 +725,29 @@ class Denoiser:
             )
 
     # -- setup helpers ----------------------------------------------------------------------
+
+    def _check_overrides(
+        self, overrides: Mapping[str, float]
+    ) -> dict[str, tuple[np.ndarray, ort.OrtValue]]:
+        """name -> (value as a float32 scalar, its OrtValue) for every overridden option."""
+        known = {o.name: o for o in self._contract.options}
+        inputs = {i.name for i in self._session.get_overridable_initializers()}
+        values = {}
+        for name, value in overrides.items():
+            option = known.get(name)
+            if option is None:
+                raise InputError(
+                    f"{self.source}: model {self.family!r} has no run-time option {name!r} "
+                    f"(options: {', '.join(known) or 'none'})"
+                )
+            if option.input_name not in inputs:
+                raise ContractError(
+                    f"{self.source}: option {name!r} is declared but {option.input_name!r} is "
+                    "not an overridable initializer of the graph"
+                )
+            array = np.array(option.check(value), np.float32)
+            values[name] = (array, ort.OrtValue.ortvalue_from_numpy(array))
+        return values
 
     def _state_device(self, providers: list[str]) -> tuple[str, int] | None:
         """Where bound state lives: None for host memory, else (device type, device id)."""

@@ -29,11 +29,13 @@ import numpy as np
 
 from .atomic import check_writable, temp_files_of
 from .backend import Backend
+from .contract import SAMPLES
 from .errors import InputError
 from .exr import read_exr
 from .layouts import Layout
 from .metrics import SequenceMetrics
 from .preview import write_png
+from .samples import sample_features_of
 from .sequence import (
     frame_number,
     match_references,
@@ -181,8 +183,12 @@ def run_sequence(
     """
     check_out_dir(job.out_dir)
     needed = getattr(backend, "required_buffers", None)
+    per_sample = needed is not None and SAMPLES in needed  # features from the model's config
+    features = sample_features_of(getattr(backend, "config", {})) if per_sample else None
     with reading():
-        plan = plan_sequence(job.frames, layout, overrides, buffers=needed)
+        plan = plan_sequence(
+            job.frames, layout, overrides, buffers=needed, sample_features=features
+        )
     size = plan.size
     references = match_references(job.frames, job.reference)
     if job.reference is not None and not any(references):

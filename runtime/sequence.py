@@ -18,6 +18,10 @@ channels at one size, and its `SequencePlan.read` then reads only the planned ch
 Non-finite input values (NaN, Inf) are replaced (by 0, or as runtime/guard.py says for depth
 and motion) and counted per frame (pixels with any non-finite value in any buffer), so that
 nothing downstream sees them; `Denoiser.process` guards the buffers again (ranges, outliers).
+
+Per-sample input: asking for the rank-5 `samples` buffer (among `buffers`) reads the
+`sample<i>.*` layers of the per-sample features `sample_features` (runtime/samples.py; the
+default set when not given), or makes S = 1 from the pixel buffers when a file has none.
 """
 
 from __future__ import annotations
@@ -31,11 +35,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .contract import BUFFER_CHANNELS
+from .contract import BUFFER_CHANNELS, SAMPLES
 from .errors import InputError
 from .exr import read_exr, read_exr_header, write_exr
 from .guard import replace_nonfinite
 from .layouts import Layout, check_channels, get_layout, resolve_channels, stack_buffers
+from .samples import DEFAULT_SAMPLE_FEATURES, SamplePlan, plan_samples, samples_from_buffers
 
 Spec = str | os.PathLike
 _LAST_INT = re.compile(r"(\d+)(?!.*\d)")
@@ -222,13 +227,14 @@ def match_references(
 
 
 def nonfinite_pixels(a: np.ndarray) -> np.ndarray | None:
-    """The (H, W) mask of the pixels of a (C, H, W) float array with NaN/Inf in any channel,
-    or None when every value is finite: then it costs one pass (a sum), the common case."""
+    """The (H, W) mask of the pixels of a (C, H, W) (or (S, C, H, W)) float array with NaN/Inf
+    in any channel, or None when every value is finite: then it costs one pass (a sum), the
+    common case."""
     with np.errstate(over="ignore", invalid="ignore"):  # a finite sum may overflow: recheck
         if np.isfinite(a.sum()):
             return None
     bad = ~np.isfinite(a)
-    return bad.any(axis=0) if bad.any() else None
+    return bad.reshape(-1, *bad.shape[-2:]).any(axis=0) if bad.any() else None
 
 
 def _replace_nonfinite(buffers: dict[str, np.ndarray]) -> tuple[int, tuple[str, ...]]:
@@ -262,14 +268,20 @@ def _read_mapped(
     channels: Mapping[str, Sequence[str]],
     expect_size: tuple[int, int] | None,
     index: int | None,
+    samples: SamplePlan | None = None,
 ) -> Frame:
     """Read the mapped channels only, stack them into float32 buffers, NaN/Inf -> 0 (one
-    pass per buffer), then the layout's conversion."""
-    raw = read_exr(path, [n for names in channels.values() for n in names], dtype=None)
+    pass per buffer), then the layout's conversion (and the samples buffer, if planned)."""
+    names = [n for ns in channels.values() for n in ns]
+    raw = read_exr(path, names + (samples.channel_names if samples else []), dtype=None)
     buffers = stack_buffers(raw, channels, source=str(path))
     _check_size(path, buffers["color"].shape[1:], expect_size)
+    if samples is not None and samples.layers:
+        buffers[SAMPLES] = samples.stack(raw)
     nonfinite, bad = _replace_nonfinite(buffers)
     buffers = layout.convert(buffers)
+    if samples is not None and not samples.layers:  # S = 1 from the pixel buffers
+        buffers[SAMPLES] = samples_from_buffers(buffers, samples.features)
     n = frame_number(path)
     return Frame(
         index=n if n is not None else (index or 0),
@@ -288,22 +300,47 @@ def read_frame(
     index: int | None = None,
     *,
     buffers: Collection[str] | None = None,
+    sample_features: Sequence[str] | None = None,
 ) -> Frame:
     """Read one frame into canonical buffers (layout conversion applied, NaN/Inf -> 0).
 
     `expect_size` = (height, width) the sequence has; a different size is an InputError.
     buffers: read only these (and `color`) when the file has them; None: every buffer found.
+    `samples` among them (or `sample_features` given) also reads the per-sample buffer.
     Resolves the channels from this file's header; for a sequence, `plan_sequence` resolves
     them once.
     """
     path = Path(path)
     layout = _layout(layout)
-    mapping = resolve_channels(
-        read_exr_header(path), layout, overrides, source=str(path), buffers=buffers
-    )
-    if buffers is not None:
-        mapping = {b: names for b, names in mapping.items() if b in buffers or b == "color"}
-    return _read_mapped(path, layout, mapping, expect_size, index)
+    header = read_exr_header(path)
+    samples = _plan_samples(header, buffers, sample_features, str(path))
+    pixel = _pixel_buffers(buffers, samples)
+    mapping = resolve_channels(header, layout, overrides, source=str(path), buffers=pixel)
+    if pixel is not None:
+        mapping = {b: names for b, names in mapping.items() if b in pixel or b == "color"}
+    return _read_mapped(path, layout, mapping, expect_size, index, samples)
+
+
+def _plan_samples(
+    header: Collection[str],
+    buffers: Collection[str] | None,
+    features: Sequence[str] | None,
+    source: str,
+) -> SamplePlan | None:
+    """The samples plan when `samples` is asked for (in `buffers` or by naming features)."""
+    if features is None and (buffers is None or SAMPLES not in buffers):
+        return None
+    return plan_samples(header, features or DEFAULT_SAMPLE_FEATURES, source)
+
+
+def _pixel_buffers(
+    buffers: Collection[str] | None, samples: SamplePlan | None
+) -> tuple[str, ...] | None:
+    """The canonical buffers to read: `buffers` without `samples`, plus those S = 1 is made of."""
+    if buffers is None:
+        return None
+    pixel = [b for b in buffers if b != SAMPLES]
+    return tuple(dict.fromkeys((*pixel, *(samples.pixel_buffers() if samples else ()))))
 
 
 @dataclass(frozen=True)
@@ -313,10 +350,11 @@ class SequencePlan:
     layout: Layout
     channels: Mapping[str, tuple[str, ...]]  # buffer -> EXR channel names, the buffers read
     size: tuple[int, int]  # (height, width) of every frame
+    samples: SamplePlan | None = None  # the per-sample buffer, when asked for
 
     def read(self, path: Spec, index: int | None = None) -> Frame:
         """Read one frame of the sequence: only the planned channels, NaN/Inf -> 0."""
-        return _read_mapped(Path(path), self.layout, self.channels, self.size, index)
+        return _read_mapped(Path(path), self.layout, self.channels, self.size, index, self.samples)
 
 
 def _needed_mapping(
@@ -350,12 +388,16 @@ def plan_sequence(
     overrides: Mapping[str, str] | None = None,
     *,
     buffers: Collection[str] | None = None,
+    sample_features: Sequence[str] | None = None,
 ) -> SequencePlan:
     """Check every frame's header and resolve the channels once, before reading pixels.
 
     buffers: the buffers to read (a model's `required_buffers`; `color` always), each of
         which must be found; other layers are neither checked nor read, except buffers named
         in `overrides`, whose channels must exist. None: every buffer the first frame has.
+        `samples` among them reads the per-sample buffer (features `sample_features`, else
+        the default set): the first frame's sample layers in every frame, or S = 1 from the
+        pixel buffers when it has none.
     The mapping comes from the first frame; every frame must hold its channels at one size.
     Raises InputError naming the first bad file (and channel).
     """
@@ -366,7 +408,11 @@ def plan_sequence(
         raise InputError("empty sequence")
     first = paths[0]
     sizes = read_exr_header(first)
+    samples = _plan_samples(sizes, buffers, sample_features, str(first))
+    buffers = _pixel_buffers(buffers, samples)
     mapping = _needed_mapping(sizes, layout, overrides, buffers, str(first))
+    if samples is not None and samples.layers:
+        mapping = {**mapping, SAMPLES: samples.channel_names}  # checked like the buffers
     size: tuple[int, int] | None = None
     for p in paths:
         if p != first:
@@ -389,9 +435,11 @@ def plan_sequence(
             )
     assert size is not None
     read = {
-        b: tuple(ns) for b, ns in mapping.items() if buffers is None or b in buffers or b == "color"
+        b: tuple(ns)
+        for b, ns in mapping.items()
+        if b != SAMPLES and (buffers is None or b in buffers or b == "color")
     }
-    return SequencePlan(layout=layout, channels=read, size=size)
+    return SequencePlan(layout=layout, channels=read, size=size, samples=samples)
 
 
 def _reference_channels(names: Collection[str], layout: Layout | str, path: Path) -> list[str]:
@@ -455,15 +503,17 @@ def iter_sequence(
     overrides: Mapping[str, str] | None = None,
     *,
     buffers: Collection[str] | None = None,
+    sample_features: Sequence[str] | None = None,
 ) -> Iterator[Frame]:
     """Frames of a sequence in order, after checking all headers (channels, one size).
 
     spec: a folder, glob, printf pattern or file (or a list). layout: a preset name, a layout
     file (.toml) or a Layout. buffers: read only these (e.g. `Denoiser.required_buffers`),
-    each of which every frame must have; None: every buffer the layout finds.
+    each of which every frame must have; None: every buffer the layout finds. A per-sample
+    model's `samples` is read with `sample_features` (`sample_features_of(denoiser.config)`).
     """
     paths = find_frames(spec)
-    plan = plan_sequence(paths, layout, overrides, buffers=buffers)
+    plan = plan_sequence(paths, layout, overrides, buffers=buffers, sample_features=sample_features)
     for i, p in enumerate(paths):
         yield plan.read(p, index=i)
 

@@ -5,10 +5,23 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
+from rtdenoise.runtime.samples import DEFAULT_SAMPLE_FEATURES
+
+
+def samples_of(buffers: dict[str, torch.Tensor], s: int = 2) -> torch.Tensor:
+    """(N, S, C, H, W) per-sample buffers (the default features) whose colour mean is `color`:
+    sample i scales the colour by a fixed factor, the factors averaging 1."""
+    scales = torch.linspace(0.5, 1.5, s) if s > 1 else torch.ones(1)
+    parts = []
+    for name in DEFAULT_SAMPLE_FEATURES:
+        x = buffers[name].unsqueeze(1).expand(-1, s, -1, -1, -1)
+        parts.append(x * scales.view(1, s, 1, 1, 1) if name == "color" else x)
+    return torch.cat(parts, dim=2).contiguous()
+
 
 def random_buffers(seed: int, n: int, h: int, w: int) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
-    return {
+    buffers = {
         "color": torch.rand(n, 3, h, w, generator=g) * 4.0,
         "color_b": torch.rand(n, 3, h, w, generator=g) * 4.0,
         "albedo": torch.rand(n, 3, h, w, generator=g),
@@ -16,3 +29,4 @@ def random_buffers(seed: int, n: int, h: int, w: int) -> dict[str, torch.Tensor]
         "depth": 1.0 + torch.rand(n, 1, h, w, generator=g) * 5.0,
         "motion": (torch.rand(n, 2, h, w, generator=g) - 0.5) * 3.0,
     }
+    return buffers | {"samples": samples_of(buffers)}

@@ -94,3 +94,32 @@ def test_compare_without_pyoidn_says_what_to_install(monkeypatch):
     res = runner.invoke(app, ["compare", "demo:wskp", "--size", "8x8", "--repeats", "1"])
     assert res.exit_code == 2
     assert "pip install 'rtdenoise[bench]'" in res.output
+
+
+def test_compare_eager_is_the_deployed_model_of_the_same_checkpoint(tmp_path):
+    """--eager adds PyTorch eager of each model (a per-sample one included): same quality as ORT,
+    timed beside it."""
+    out = tmp_path / "c.json"
+    seq = str(sample_sequences()[1])
+    args = ["compare", "demo:wskp", "demo:affinity", "--eager", "--oidn", "none"]
+    args += ["--size", "24x16", "--repeats", "1", "--sequence", seq, "--json", str(out)]
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    assert data["device"] == "cpu"
+    for spec in ("demo:wskp", "demo:affinity"):
+        eager = f"{spec} (PyTorch cpu)"
+        assert set(data["speed"][0]["times_ms"]) >= {spec, eager}
+        q = data["quality"]
+        assert q[eager]["mean"]["psnr"] == pytest.approx(q[spec]["mean"]["psnr"], abs=1e-3)
+        assert q[spec]["mean"]["psnr"] > data["noisy"]["mean"]["psnr"] + 6.0
+
+
+def test_compare_eager_needs_a_checkpoint_and_a_usable_device(tmp_path):
+    from rtdenoise.shipped import MODELS_DIR
+
+    onnx_only = str(MODELS_DIR / "wskp.onnx")
+    res = runner.invoke(app, ["compare", onnx_only, "--eager", "--size", "8x8", "--oidn", "none"])
+    assert res.exit_code == 2 and "has no PyTorch checkpoint" in res.output
+    res = runner.invoke(app, ["compare", "demo:wskp", "--device", "tpu:0", "--size", "8x8"])
+    assert res.exit_code == 2 and "device 'tpu:0'" in res.output

@@ -12,11 +12,12 @@ import pytest
 
 from rtdenoise.runtime.denoiser import Denoiser
 from rtdenoise.runtime.metrics import SequenceMetrics
+from rtdenoise.runtime.samples import sample_features_of, samples_from_buffers
 from rtdenoise.runtime.sequence import find_frames, match_references, read_frame, read_reference
 from rtdenoise.shipped import MODELS_DIR, sample_sequences
 
 # family -> minimum PSNR gain over the noisy input, dB
-MIN_GAIN_DB = {"afn": 6.0, "wskp": 6.0, "nbg": 6.0, "crossreg": 6.0}
+MIN_GAIN_DB = {"afn": 6.0, "wskp": 6.0, "nbg": 6.0, "crossreg": 6.0, "affinity": 6.0}
 FAMILIES = sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) if MODELS_DIR.is_dir() else []
 
 
@@ -24,6 +25,15 @@ def load_sequence(folder):
     frames = find_frames(folder)
     refs = match_references(frames)
     return [read_frame(p).buffers for p in frames], [read_reference(r) for r in refs]
+
+
+def for_model(frames: list[dict], denoiser: Denoiser) -> list[dict]:
+    """The frames with the per-sample buffer when the model reads one (S = 1 from the pixel
+    means: the committed sequences have no sample layers)."""
+    if "samples" not in denoiser.required_buffers:
+        return frames
+    features = sample_features_of(denoiser.config)
+    return [f | {"samples": samples_from_buffers(f, features)} for f in frames]
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +54,7 @@ def test_demo_beats_noisy_input(family, sequences):
     for frames, refs in sequences:
         out_metrics, in_metrics = SequenceMetrics(), SequenceMetrics()
         denoiser = Denoiser(f"demo:{family}")
-        for frame, ref in zip(frames, refs, strict=True):
+        for frame, ref in zip(for_model(frames, denoiser), refs, strict=True):
             out = denoiser.process(frame)
             assert np.isfinite(out).all()
             out_metrics.add(out, ref)
@@ -60,7 +70,7 @@ def test_demo_onnx_matches_its_checkpoint_over_eight_frames(family, sequences):
     from rtdenoise.models.checkpoint import load_checkpoint
 
     model, _ = load_checkpoint(MODELS_DIR / f"{family}.pt")
-    frames = sequences[0][0][:8]
+    frames = for_model(sequences[0][0][:8], Denoiser(f"demo:{family}"))
     report = validate(model, (MODELS_DIR / f"{family}.onnx").read_bytes(), frames, tolerance=1e-4)
     assert report.passed, report.errors
     assert all(len(errors) == 8 for errors in report.errors.values())
@@ -68,14 +78,14 @@ def test_demo_onnx_matches_its_checkpoint_over_eight_frames(family, sequences):
 
 @pytest.mark.parametrize("family", FAMILIES)
 def test_reset_and_resolution_change_restart_history(family, sequences):
-    frames = sequences[0][0]
     denoiser = Denoiser(f"demo:{family}")
+    frames = for_model(sequences[0][0], denoiser)
     first = denoiser.process(frames[0])
     second = denoiser.process(frames[1])
     assert not np.allclose(second, Denoiser(f"demo:{family}").process(frames[1]))  # history used
     denoiser.reset()
     np.testing.assert_array_equal(denoiser.process(frames[0]), first)
-    cropped = {k: np.ascontiguousarray(v[:, :40, :52]) for k, v in frames[0].items()}
+    cropped = {k: np.ascontiguousarray(v[..., :40, :52]) for k, v in frames[0].items()}
     fresh = Denoiser(f"demo:{family}").process(cropped)
     denoiser.process(frames[1])
     np.testing.assert_array_equal(denoiser.process(cropped), fresh)  # new size: history dropped

@@ -142,9 +142,7 @@ def test_adaptive_fusion_rejects_odd_sizes():
             np.zeros((1, 1, 5, 6), np.float32),
         )
     with pytest.raises(ValueError, match="even"):
-        adaptive_fusion(
-            torch.zeros(1, 3, 5, 6), torch.zeros(1, 3, 2, 3), torch.zeros(1, 1, 5, 6)
-        )
+        adaptive_fusion(torch.zeros(1, 3, 5, 6), torch.zeros(1, 3, 2, 3), torch.zeros(1, 1, 5, 6))
 
 
 # ------------------------------------------------------------------ gradients (torch form)
@@ -157,9 +155,7 @@ def test_torch_forms_are_differentiable():
         return torch.from_numpy(rng.standard_normal(shape)).requires_grad_(True)
 
     image, kernel = t(1, 2, 5, 6), t(1, 9, 5, 6)
-    assert torch.autograd.gradcheck(
-        lambda a, b: kernel_apply(a, b, dilation=2), (image, kernel)
-    )
+    assert torch.autograd.gradcheck(lambda a, b: kernel_apply(a, b, dilation=2), (image, kernel))
     d_ta, d_low, alpha = t(1, 2, 4, 6), t(1, 2, 2, 3), t(1, 1, 4, 6)
     assert torch.autograd.gradcheck(adaptive_fusion, (d_ta, d_low, alpha))
 
