@@ -36,7 +36,10 @@ LABELS = {
 
 Threads = Annotated[
     int | None,
-    typer.Option(min=1, help="Threads for ONNX Runtime and PyTorch (default: their own)."),
+    typer.Option(
+        min=1,
+        help="Threads for ONNX Runtime, the fast kernels (numba) and PyTorch (default: their own).",
+    ),
 ]
 
 

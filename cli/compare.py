@@ -194,14 +194,10 @@ def compare_command(
             from rtdenoise.models.device import torch_device
 
             torch_device(device)
-        if threads:
-            import numba
+        if threads and eager:  # Denoiser(threads=) sets ORT's and numba's own
+            import torch
 
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-            if eager:
-                import torch
-
-                torch.set_num_threads(threads)
+            torch.set_num_threads(threads)
         contenders = []
         for spec in specs:
             source = _onnx_source(spec)

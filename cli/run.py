@@ -275,8 +275,8 @@ def run(
         typer.Option(
             "--threads",
             min=1,
-            help="ONNX Runtime intra-op threads (default: all); with --cluster, also numba's "
-            "threads and the CPUs Ray reserves for each shot (default there: 1).",
+            help="Threads of ONNX Runtime and of the fast kernels (numba) (default: all cores); "
+            "with --cluster, also the CPUs Ray reserves for each shot (default there: 1).",
         ),
     ] = None,
     overwrite: Annotated[

@@ -42,16 +42,18 @@ def bench_op(
     """Median milliseconds per call of every form of `op_name` on an (N, C, H, W) image.
 
     attrs default to the op's `default_attrs`; `inputs` (optional) replaces the spec's
-    example inputs (e.g. the tensors a model really passes); threads sets ORT intra-op threads
-    and torch threads (0 = library default); tune_allocator first applies the process-wide
+    example inputs (e.g. the tensors a model really passes); threads sets ORT intra-op threads,
+    numba's and torch's (0 = library default); tune_allocator first applies the process-wide
     runtime.fastops.tune_allocator(). Returns {"op", "shape", "attrs", "ms": {form: ms},
     "max_abs_diff": {form: vs torch}}.
     """
+    import numba
     import onnxruntime as ort
     import torch
 
     from rtdenoise.models.ops import TORCH_OPS
     from rtdenoise.runtime import fastops
+    from rtdenoise.runtime.denoiser import ALLOW_SPINNING
     from rtdenoise.runtime.kernels import KERNELS
 
     from .ops import single_op_model
@@ -70,6 +72,7 @@ def bench_op(
         so.intra_op_num_threads = threads
         if fast:
             fastops.register_fast_kernels(so)
+            so.add_session_config_entry(ALLOW_SPINNING, "0")  # as Denoiser runs it
         return ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
 
     fast_sess, portable_sess = session(True), session(False)
@@ -77,6 +80,7 @@ def bench_op(
     tensors = [torch.from_numpy(x) for x in inputs]
     if threads:
         torch.set_num_threads(threads)
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
 
     def first(out) -> np.ndarray:
         return out[0] if isinstance(out, (tuple, list)) else out

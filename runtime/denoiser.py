@@ -75,7 +75,20 @@ _DEVICE_OF_PROVIDER = {
     "DmlExecutionProvider": "dml",
 }
 _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
+# The fast kernels run on one numba thread on frames below this many pixels (padded H x W):
+# there numba's parallel regions (a wake-up and a barrier each; on a busy machine a scheduler
+# time slice) cost more than they save (docs/architecture.md, "Threads").
+SERIAL_KERNELS_BELOW = 256 * 256
+ALLOW_SPINNING = "session.intra_op.allow_spinning"  # ORT session config key, "0" or "1"
 HALF_MAX = 65504.0  # the largest float16: an `out` in half float is clamped to it
+
+
+def kernel_threads(
+    padded: tuple[int, int], threads: int | None, serial_below: int = SERIAL_KERNELS_BELOW
+) -> int | None:
+    """numba threads for the fast kernels on frames of `padded` (H, W): one below
+    `serial_below` pixels, else `threads` (None: numba's own setting)."""
+    return 1 if padded[0] * padded[1] < serial_below else threads
 
 
 def resolve_model(spec: str | os.PathLike) -> Path:
@@ -235,7 +248,12 @@ class Denoiser:
     model: a path to an .onnx file, `demo:<family>`, or the serialized model bytes.
     fast_kernels: register the native (numba) kernels of the rtdenoise custom ops; False runs
         their portable ONNX function bodies, inlined by ONNX Runtime.
-    threads: ONNX Runtime intra-op threads (None: its default, all physical cores).
+    threads: threads of ONNX Runtime's intra-op pool and of the fast (numba) kernels, which
+        run between its ops (None: each library's default, all cores). The kernels use one
+        thread on frames below `serial_below` pixels (padded; default SERIAL_KERNELS_BELOW).
+    spinning: whether ONNX Runtime's idle intra-op threads spin (busy-wait) for work; None
+        (default): not while the fast kernels are registered, where they would compete with the
+        kernels' threads for the cores (docs/architecture.md, "Threads"), else ORT's default.
     providers: execution providers, e.g. ["CUDAExecutionProvider"] or ["cuda"] (default CPU).
     io_binding: keep the state in bound OrtValues between frames (default); False uses plain
         `session.run` with numpy state (the reference path, same results).
@@ -252,6 +270,7 @@ class Denoiser:
         *,
         fast_kernels: bool = True,
         threads: int | None = None,
+        spinning: bool | None = None,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
         learn: bool = True,
@@ -272,8 +291,14 @@ class Denoiser:
             if threads < 1:
                 raise InputError(f"threads must be >= 1, got {threads}")
             options.intra_op_num_threads = threads
+        self.threads = threads
+        self.serial_below = SERIAL_KERNELS_BELOW
         self._fastops = _register_fast_kernels(options) if fast_kernels else None
         self.fast_kernels = self._fastops is not None
+        if spinning is None and self.fast_kernels:
+            spinning = False  # idle ORT workers would spin while a kernel needs the cores
+        if spinning is not None:
+            options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
         wanted = resolve_providers(providers)
         try:
             self._session = ort.InferenceSession(payload, options, providers=wanted)
@@ -506,10 +531,17 @@ class Denoiser:
         """Raise a fast kernel's exception here, after the run (runtime/fastops.py)."""
         return self._fastops.raise_kernel_errors() if self._fastops else nullcontext()
 
+    def _kernel_threads(self) -> AbstractContextManager[None]:
+        """numba's thread count for the fast kernels of this thread's run (`kernel_threads`)."""
+        if not self._fastops or self._padded is None:
+            return nullcontext()
+        n = kernel_threads(self._padded, self.threads, self.serial_below)
+        return self._fastops.kernel_threads(n)
+
     def _session_call(self, run: Callable[..., Any], *args: Any) -> Any:
         """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
         it returns, before any state is swapped: a failed frame leaves the history as it was."""
-        with deferred_signals(), self._kernel_errors():
+        with deferred_signals(), self._kernel_errors(), self._kernel_threads():
             return run(*args)
 
     def _prepare(

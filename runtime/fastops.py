@@ -32,7 +32,7 @@ import threading
 import warnings
 from collections import Counter
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 
 import numpy as np
 import onnxruntime as ort
@@ -236,6 +236,28 @@ for _kernel in KERNELS.values():
     _declare(_kernel)
 
 
+def kernel_threads(threads: int | None) -> AbstractContextManager[None]:
+    """Run this thread's kernels with `threads` numba threads (None: leave numba's setting).
+
+    numba's thread count belongs to the calling thread, and ONNX Runtime runs a Python custom
+    op on the thread that called `session.run`: so the count is set around each run, on the
+    thread that runs it, capped at numba's pool size (NUMBA_NUM_THREADS), and restored after.
+    """
+    return nullcontext() if threads is None else _numba_threads(threads)
+
+
+@contextmanager
+def _numba_threads(threads: int) -> Iterator[None]:
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
 def register_fast_kernels(so: ort.SessionOptions) -> None:
     """Make sessions created with `so` run the rtdenoise ops with the numba kernels."""
     install_array_hook()
@@ -248,6 +270,7 @@ __all__ = [
     "KernelError",
     "hook_installed",
     "install_array_hook",
+    "kernel_threads",
     "raise_kernel_errors",
     "register_fast_kernels",
     "take_kernel_error",
