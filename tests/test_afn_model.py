@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 from model_inputs import random_buffers
+from torch import nn
 
-from rtdenoise.models.families.afn import AFN, AFNConfig, parameter_count
+from rtdenoise.models.families.afn import AFN, LEGACY_CONFIG, AFNConfig, parameter_count
 from rtdenoise.models.ops import observe_calls
 from rtdenoise.models.registry import build_model, default_config, families
 
@@ -57,17 +58,74 @@ def test_kernels_are_normalised_and_alpha_in_unit_range(model: AFN):
 def test_registry_and_default_size():
     assert "afn" in families()
     cfg = default_config("afn")
-    assert cfg["widths"] == [24, 32, 48] and cfg["kernel_size"] == 7
+    assert cfg["widths"] == [8, 12, 16, 24] and cfg["kernel_size"] == 7
+    assert cfg["full_res_convs"] == 1 and cfg["refine_width"] == 8
     m = build_model("afn")
     assert m.config() == cfg
-    assert m.pad_multiple == 4
-    assert 50_000 < parameter_count(m) < 150_000
+    assert m.pad_multiple == 8
+    assert parameter_count(m) == 32_458
     with pytest.raises(ValueError, match="unknown model family 'nope'"):
         build_model("nope")
     with pytest.raises(ValueError, match="unknown afn config keys"):
         build_model("afn", {"width": 3})
     with pytest.raises(ValueError, match="kernel_size must be odd"):
         AFNConfig.from_dict({"kernel_size": 4})
+
+
+def _conv_macs_per_pixel(model: AFN, h: int = 32, w: int = 32) -> float:
+    """Multiply-adds of every Conv2d per pixel, counted by forward hooks."""
+    macs = []
+
+    def hook(conv, inputs, output):
+        k = conv.kernel_size[0] * conv.kernel_size[1] * conv.in_channels // conv.groups
+        macs.append(output.numel() * k)
+
+    handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Conv2d)]
+    buffers = _buffers(n=1, h=h, w=w)
+    model(buffers, model.initial_state(1, h, w), torch.tensor(1.0))
+    for handle in handles:
+        handle.remove()
+    return sum(macs) / (h * w)
+
+
+def test_default_is_within_lee24_budget_and_legacy_is_not():
+    """Lee24 times kernel prediction at 1.46 ms per 720p frame (about 8 k multiply-adds per
+    pixel, 14 GFLOP): the default network, predictor and refinement together, fits; the model
+    the demo shipped before (45.5 k, 83.9 GFLOP) does not. Exact counts by hand: predictor
+    e0 9*14*8 + d0 9*20*8 + 1/4 (e1 9*(8*12+12*12) + d1 9*(28*12+12*12)) + ... + heads."""
+    with torch.no_grad():
+        light = _conv_macs_per_pixel(build_model("afn").eval())
+        legacy = _conv_macs_per_pixel(build_model("afn", LEGACY_CONFIG).eval())
+    assert light == 7018.0 and legacy == 45512.0
+    assert 2 * light * 1280 * 720 / 1e9 < 14.0
+
+
+def test_old_checkpoint_configs_rebuild_the_model_they_were_trained_as():
+    """A config saved before `full_res_convs` existed (every other key present) gets the two
+    full-scale convs it had; a partial config (user overrides) gets today's defaults."""
+    old = {
+        "widths": [24, 32, 48],
+        "kernel_size": 7,
+        "refine_width": 16,
+        "refine_layers": 3,
+        "albedo_eps": 0.01,
+        "depth_scale": "log",
+        "history_input": True,
+        "depth_tolerance": 0.1,
+        "normal_threshold": 0.9,
+        "min_alpha": 0.2,
+        "max_history": 64.0,
+    }
+    cfg = AFNConfig.from_dict(old)
+    assert cfg.full_res_convs == 2
+    assert AFNConfig.from_dict({**old, "full_res_convs": 1}).full_res_convs == 1
+    assert AFNConfig.from_dict({"widths": [24, 32, 48]}).full_res_convs == 1
+    assert AFNConfig.from_dict(cfg.to_dict()) == cfg == AFNConfig.from_dict(LEGACY_CONFIG | old)
+    model = build_model("afn", old)
+    assert len(model.predictor.encoders[0]) == 4  # conv, relu, conv, relu
+    assert parameter_count(model) == 115_830  # the count of the old default (specs table)
+    with pytest.raises(ValueError, match="full_res_convs must be >= 1"):
+        AFNConfig.from_dict({"full_res_convs": 0})
 
 
 def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):

@@ -31,14 +31,25 @@ Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
   is huge, e.g. 1e4); "linear": d / max d (the paper's text).
 - `history_input`: the TA blend weight a (1 on fresh pixels, min_alpha on converged ones) is
   an extra input channel so the network knows how reliable r_TA is (not in the paper).
-- Autoencoder: `widths` per scale (default 24, 32, 48 at 1, 1/2, 1/4), two 3 x 3 convs + ReLU
-  per scale, 2 x 2 average pooling down, nearest 2 x upsampling + skip concatenation up.
-  Heads are 1 x 1 convs. Kernel size 7 for both kernels (the paper's k).
-- Refinement R: `refine_layers` 3 x 3 convs of width `refine_width` on
-  [log1p(i), albedo, normal, depth]; the residual is added in the log1p domain,
+- Autoencoder ("light-weight", III-B, timed at 1.46 ms per 720p frame on an RTX 2080 Ti, i.e.
+  about 8 k multiply-adds per pixel): `widths` per scale (default 8, 12, 16, 24 at 1, 1/2,
+  1/4, 1/8), 3 x 3 convs + ReLU, `full_res_convs` of them (default 1) in the full-scale
+  encoder and decoder blocks and two in every other block, 2 x 2 average pooling down,
+  nearest 2 x upsampling + skip concatenation up. Heads are 1 x 1 convs. Kernel size 7 for
+  both kernels (the paper's k). The full scale dominates the cost (every conv there costs 4x
+  its 1/2-scale twin), hence one conv there and the width at the coarse scales.
+- Refinement R ("small", 0.89 ms in Lee24 Table 10): `refine_layers` (3) 3 x 3 convs of width
+  `refine_width` (8) on [log1p(i), albedo, normal, depth]; the residual is added in the log1p
+  domain,
   o = expm1(max(log1p(max(i, 0)) + R, 0)), which keeps the output >= 0 (the fused image can
   be slightly negative: eq. (3) is an unsharp-mask-like difference).
 - H and W must be multiples of `pad_multiple` = 2 ** (len(widths) - 1).
+
+Cost (2 x multiply-adds of the Conv layers, `rtdenoise.models.flops`): the defaults take 7.0 k
+multiply-adds per pixel, 12.9 GFLOP per 1280 x 720 frame (predictor 10.1, refinement 2.8),
+within Lee24's budget (<= 14). `LEGACY_CONFIG` (widths 24, 32, 48, two convs per block,
+refinement width 16; 45.5 k, 83.9 GFLOP) is the model the demo shipped before; checkpoints
+saved before `full_res_convs` existed rebuild with it (see `AFNConfig.from_dict`).
 """
 
 from __future__ import annotations
@@ -69,47 +80,79 @@ class AFNConfig(AccumulatingConfig):
 
     family = "afn"
 
-    widths: tuple[int, ...] = (24, 32, 48)
+    widths: tuple[int, ...] = (8, 12, 16, 24)
     kernel_size: int = 7
-    refine_width: int = 16
+    refine_width: int = 8
     refine_layers: int = 3
     depth_scale: str = "log"  # "log" or "linear"
     history_input: bool = True
+    full_res_convs: int = 1  # 3 x 3 convs in the full-scale encoder and decoder blocks
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> AFNConfig:
+        """As `FamilyConfig.from_dict`, except that a complete config saved before a field
+        existed (every key of `_PRE_LIGHT_KEYS`, as `to_dict` wrote it into checkpoints and
+        ONNX metadata) gets the value that field had then, not today's default: an old
+        checkpoint rebuilds the model it was trained as."""
+        data = dict(data or {})
+        if _PRE_LIGHT_KEYS <= set(data):
+            for key, value in _ADDED_FIELDS.items():
+                data.setdefault(key, value)
+        return super().from_dict(data)
 
     def validate(self) -> None:
         if len(self.widths) < 2 or any(w < 1 for w in self.widths):
             raise self.fail(f"widths must list >= 2 positive sizes, got {self.widths}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:
             raise self.fail(f"kernel_size must be odd, got {self.kernel_size}")
+        if self.full_res_convs < 1:
+            raise self.fail(f"full_res_convs must be >= 1, got {self.full_res_convs}")
         if self.refine_layers < 1:
             raise self.fail(f"refine_layers must be >= 1, got {self.refine_layers}")
         if self.depth_scale not in ("log", "linear"):
             raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
 
 
-def _conv_block(c_in: int, c_out: int) -> nn.Sequential:
-    return nn.Sequential(
-        nn.Conv2d(c_in, c_out, 3, padding=1),
-        nn.ReLU(inplace=True),
-        nn.Conv2d(c_out, c_out, 3, padding=1),
-        nn.ReLU(inplace=True),
-    )
+# The AFNConfig keys of every checkpoint saved before `full_res_convs` was added, and the
+# value each field added since had implicitly then (the full-scale blocks had two convs).
+_PRE_LIGHT_KEYS = frozenset(
+    ("widths", "kernel_size", "refine_width", "refine_layers", "depth_scale", "history_input")
+    + ("albedo_eps", "depth_tolerance", "normal_threshold", "min_alpha", "max_history")
+)
+_ADDED_FIELDS = {"full_res_convs": 2}
+
+# The model demo:afn shipped before the light default (83.9 GFLOP per 720p frame).
+LEGACY_CONFIG = {"widths": [24, 32, 48], "refine_width": 16, "full_res_convs": 2}
+
+
+def _conv_block(c_in: int, c_out: int, convs: int = 2) -> nn.Sequential:
+    mods: list[nn.Module] = []
+    for i in range(convs):
+        mods += [nn.Conv2d(c_in if i == 0 else c_out, c_out, 3, padding=1), nn.ReLU(inplace=True)]
+    return nn.Sequential(*mods)
 
 
 class KernelPredictor(nn.Module):
     """Lee24 eq. (1): M(r_1spp, r_TA, f) -> K_1spp (1/2 scale), K_TA and alpha (full scale)."""
 
-    def __init__(self, in_channels: int, widths: tuple[int, ...], kernel_size: int) -> None:
+    def __init__(
+        self,
+        in_channels: int,
+        widths: tuple[int, ...],
+        kernel_size: int,
+        full_res_convs: int = 2,
+    ) -> None:
         super().__init__()
         taps = kernel_size * kernel_size
+        convs = [full_res_convs] + [2] * (len(widths) - 1)  # per scale
         self.encoders = nn.ModuleList()
         c = in_channels
-        for w in widths:
-            self.encoders.append(_conv_block(c, w))
+        for w, n in zip(widths, convs, strict=True):
+            self.encoders.append(_conv_block(c, w, n))
             c = w
         # decoders[l] produces the feature at scale 1 / 2**l from the one below and skip l.
         self.decoders = nn.ModuleList(
-            _conv_block(widths[level + 1] + widths[level], widths[level])
+            _conv_block(widths[level + 1] + widths[level], widths[level], convs[level])
             for level in range(len(widths) - 1)
         )
         self.head_1spp = nn.Conv2d(widths[1], taps, 1)
@@ -174,7 +217,9 @@ class AFN(DenoiserModel):
         self.pad_multiple = 2 ** (len(config.widths) - 1)
         # r_1spp (3) + r_TA (3) + albedo (3) + normal (3) + depth (1) [+ TA weight (1)]
         in_channels = 13 + int(config.history_input)
-        self.predictor = KernelPredictor(in_channels, config.widths, config.kernel_size)
+        self.predictor = KernelPredictor(
+            in_channels, config.widths, config.kernel_size, config.full_res_convs
+        )
         self.refine = Refinement(7 + 3, config.refine_width, config.refine_layers)
 
     def forward(
@@ -218,4 +263,11 @@ def parameter_count(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
-__all__ = ["AFN", "AFNConfig", "KernelPredictor", "Refinement", "parameter_count"]
+__all__ = [
+    "AFN",
+    "AFNConfig",
+    "LEGACY_CONFIG",
+    "KernelPredictor",
+    "Refinement",
+    "parameter_count",
+]
