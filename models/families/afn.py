@@ -32,24 +32,25 @@ Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
 - `history_input`: the TA blend weight a (1 on fresh pixels, min_alpha on converged ones) is
   an extra input channel so the network knows how reliable r_TA is (not in the paper).
 - Autoencoder ("light-weight", III-B, timed at 1.46 ms per 720p frame on an RTX 2080 Ti, i.e.
-  about 8 k multiply-adds per pixel): `widths` per scale (default 8, 12, 16, 24 at 1, 1/2,
-  1/4, 1/8), 3 x 3 convs + ReLU, `full_res_convs` of them (default 1) in the full-scale
-  encoder and decoder blocks and two in every other block, 2 x 2 average pooling down,
-  nearest 2 x upsampling + skip concatenation up. Heads are 1 x 1 convs. Kernel size 7 for
-  both kernels (the paper's k). The full scale dominates the cost (every conv there costs 4x
-  its 1/2-scale twin), hence one conv there and the width at the coarse scales.
-- Refinement R ("small", 0.89 ms in Lee24 Table 10): `refine_layers` (3) 3 x 3 convs of width
-  `refine_width` (8) on [log1p(i), albedo, normal, depth]; the residual is added in the log1p
-  domain,
-  o = expm1(max(log1p(max(i, 0)) + R, 0)), which keeps the output >= 0 (the fused image can
-  be slightly negative: eq. (3) is an unsharp-mask-like difference).
+  about 8 k multiply-adds per pixel): `widths` per scale (default 8, 12, 16, 24, 32 at 1,
+  1/2, ..., 1/16), two 3 x 3 convs + ReLU per block (`full_res_convs`: one in the full-scale
+  encoder and decoder blocks, cheaper), 2 x 2 average pooling down, nearest 2 x upsampling +
+  skip concatenation up. Heads are 1 x 1 convs. Kernel size 7 for both kernels (the paper's
+  k). Every conv at full scale costs 4 x its 1/2-scale twin: the width goes to the coarse
+  scales, which also widen the receptive field.
+- Refinement R ("small", 0.89 ms in Lee24 Table 10): `refine_layers` (2) 3 x 3 convs of width
+  `refine_width` (4) on [log1p(i), albedo, normal, depth]; the residual is added in the log1p
+  domain, o = expm1(max(log1p(max(i, 0)) + R, 0)), which keeps the output >= 0 (the fused
+  image can be slightly negative: eq. (3) is an unsharp-mask-like difference). Small because
+  it earned nothing in our training: the former demo (width 16, 3 layers, 7.7 GFLOP) scored
+  27.23 dB on the committed sequences with its residual set to zero, 27.20 dB with it.
 - H and W must be multiples of `pad_multiple` = 2 ** (len(widths) - 1).
 
-Cost (2 x multiply-adds of the Conv layers, `rtdenoise.models.flops`): the defaults take 7.0 k
-multiply-adds per pixel, 12.9 GFLOP per 1280 x 720 frame (predictor 10.1, refinement 2.8),
-within Lee24's budget (<= 14). `LEGACY_CONFIG` (widths 24, 32, 48, two convs per block,
-refinement width 16; 45.5 k, 83.9 GFLOP) is the model the demo shipped before; checkpoints
-saved before `full_res_convs` existed rebuild with it (see `AFNConfig.from_dict`).
+Cost (FLOP = 2 x multiply-adds of the Conv layers, `benchmarks/flops.py`): the defaults take
+7.46 k multiply-adds per pixel, 13.7 GFLOP per 1280 x 720 frame (predictor 12.9, refinement
+0.9), within Lee24's budget (<= 14). `LEGACY_CONFIG` (widths 24, 32, 48, refinement width 16,
+3 layers; 45.5 k, 83.9 GFLOP) is the model the demo shipped before; checkpoints store their
+whole config, so they rebuild the model they were trained as.
 """
 
 from __future__ import annotations
@@ -80,25 +81,15 @@ class AFNConfig(AccumulatingConfig):
 
     family = "afn"
 
-    widths: tuple[int, ...] = (8, 12, 16, 24)
+    widths: tuple[int, ...] = (8, 12, 16, 24, 32)
     kernel_size: int = 7
-    refine_width: int = 8
-    refine_layers: int = 3
+    refine_width: int = 4
+    refine_layers: int = 2
     depth_scale: str = "log"  # "log" or "linear"
     history_input: bool = True
-    full_res_convs: int = 1  # 3 x 3 convs in the full-scale encoder and decoder blocks
-
-    @classmethod
-    def from_dict(cls, data: dict | None) -> AFNConfig:
-        """As `FamilyConfig.from_dict`, except that a complete config saved before a field
-        existed (every key of `_PRE_LIGHT_KEYS`, as `to_dict` wrote it into checkpoints and
-        ONNX metadata) gets the value that field had then, not today's default: an old
-        checkpoint rebuilds the model it was trained as."""
-        data = dict(data or {})
-        if _PRE_LIGHT_KEYS <= set(data):
-            for key, value in _ADDED_FIELDS.items():
-                data.setdefault(key, value)
-        return super().from_dict(data)
+    # 3 x 3 convs in the full-scale encoder and decoder blocks. Checkpoints saved before this
+    # field existed lack it and had 2: a different default needs a from_dict rule for them.
+    full_res_convs: int = 2
 
     def validate(self) -> None:
         if len(self.widths) < 2 or any(w < 1 for w in self.widths):
@@ -113,16 +104,8 @@ class AFNConfig(AccumulatingConfig):
             raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
 
 
-# The AFNConfig keys of every checkpoint saved before `full_res_convs` was added, and the
-# value each field added since had implicitly then (the full-scale blocks had two convs).
-_PRE_LIGHT_KEYS = frozenset(
-    ("widths", "kernel_size", "refine_width", "refine_layers", "depth_scale", "history_input")
-    + ("albedo_eps", "depth_tolerance", "normal_threshold", "min_alpha", "max_history")
-)
-_ADDED_FIELDS = {"full_res_convs": 2}
-
 # The model demo:afn shipped before the light default (83.9 GFLOP per 720p frame).
-LEGACY_CONFIG = {"widths": [24, 32, 48], "refine_width": 16, "full_res_convs": 2}
+LEGACY_CONFIG = {"widths": [24, 32, 48], "refine_width": 16, "refine_layers": 3}
 
 
 def _conv_block(c_in: int, c_out: int, convs: int = 2) -> nn.Sequential:
