@@ -58,12 +58,13 @@ def test_kernels_are_normalised_and_alpha_in_unit_range(model: AFN):
 def test_registry_and_default_size():
     assert "afn" in families()
     cfg = default_config("afn")
-    assert cfg["widths"] == [8, 12, 16, 24, 32] and cfg["kernel_size"] == 7
-    assert cfg["full_res_convs"] == 2 and cfg["refine_width"] == 4 and cfg["refine_layers"] == 2
+    assert cfg["widths"] == [16, 12, 16, 24, 32] and cfg["kernel_size"] == 7
+    assert cfg["full_res_convs"] == 1 and cfg["full_res_decoder_kernel"] == 1
+    assert cfg["refine_width"] == 4 and cfg["refine_layers"] == 2
     m = build_model("afn")
     assert m.config() == cfg
     assert m.pad_multiple == 16
-    assert parameter_count(m) == 66_090
+    assert parameter_count(m) == 66_218
     with pytest.raises(ValueError, match="unknown model family 'nope'"):
         build_model("nope")
     with pytest.raises(ValueError, match="unknown afn config keys"):
@@ -91,20 +92,21 @@ def _conv_macs_per_pixel(model: AFN, h: int = 32, w: int = 32) -> float:
 def test_default_is_within_lee24_budget_and_legacy_is_not():
     """Lee24 times kernel prediction at 1.46 ms per 720p frame (about 8 k multiply-adds per
     pixel, 14 GFLOP): the default network, predictor and refinement together, fits; the model
-    the demo shipped before (45.5 k, 83.9 GFLOP) does not. By hand, per scale 1/2**l:
+    the demo shipped before (45.5 k, 83.9 GFLOP) does not. By hand, per scale 1/2**l (l > 0):
     9 * (c_in * w + w * w) / 4**l per encoder block, 9 * ((w_below + w) * w + w * w) / 4**l per
-    decoder block, heads 8 * 50 + 12 * 49 / 4, refinement 9 * (10 * 4 + 4 * 3)."""
-    widths, c_in, macs = (8, 12, 16, 24, 32), 14, 0.0
-    for level, w in enumerate(widths):
+    decoder block; full scale one 3 x 3 conv 14 -> 16 and one 1 x 1 conv 12 + 16 -> 16; heads
+    16 * 50 + 12 * 49 / 4; refinement 9 * (10 * 4 + 4 * 3)."""
+    widths, c_in, macs = (16, 12, 16, 24, 32), 16, 9 * 14 * 16 + (12 + 16) * 16
+    for level, w in enumerate(widths[1:], start=1):
         macs += 9 * (c_in * w + w * w) / 4**level
         c_in = w
-    for level, w in enumerate(widths[:-1]):
+    for level, w in enumerate(widths[1:-1], start=1):
         macs += 9 * ((widths[level + 1] + w) * w + w * w) / 4**level
-    macs += 8 * 50 + 12 * 49 / 4 + 9 * (10 * 4 + 4 * 3)
+    macs += 16 * 50 + 12 * 49 / 4 + 9 * (10 * 4 + 4 * 3)
     with torch.no_grad():
         light = _conv_macs_per_pixel(build_model("afn").eval())
         legacy = _conv_macs_per_pixel(build_model("afn", LEGACY_CONFIG).eval())
-    assert light == macs == 7459.0 and legacy == 45512.0
+    assert light == macs == 6939.0 and legacy == 45512.0
     assert 2 * light * 1280 * 720 / 1e9 < 14.0
 
 
@@ -125,14 +127,21 @@ def test_old_checkpoint_configs_rebuild_the_model_they_were_trained_as():
         "max_history": 64.0,
     }
     cfg = AFNConfig.from_dict(old)
-    assert cfg == AFNConfig.from_dict(LEGACY_CONFIG) and cfg.full_res_convs == 2
+    assert (cfg.full_res_convs, cfg.full_res_decoder_kernel) == (2, 3)
+    assert AFNConfig.from_dict(cfg.to_dict()) == cfg == AFNConfig.from_dict(LEGACY_CONFIG)
     model = build_model("afn", old)
     assert len(model.predictor.encoders[0]) == 4  # conv, relu, conv, relu
     assert parameter_count(model) == 115_830  # the count of the former default (specs table)
-    cheaper = build_model("afn", {"full_res_convs": 1})
-    assert len(cheaper.predictor.encoders[0]) == len(cheaper.predictor.decoders[0]) == 2
+    # a config saved with one full-scale option but before the other gets the other's old value
+    between = {**old, "full_res_convs": 1}
+    assert AFNConfig.from_dict(between).full_res_decoder_kernel == 3
+    # a partial config (overrides) gets today's defaults for what it does not name
+    partial = AFNConfig.from_dict({"widths": [24, 32, 48]})
+    assert (partial.full_res_convs, partial.full_res_decoder_kernel) == (1, 1)
     with pytest.raises(ValueError, match="full_res_convs must be >= 1"):
         AFNConfig.from_dict({"full_res_convs": 0})
+    with pytest.raises(ValueError, match="full_res_decoder_kernel must be odd"):
+        AFNConfig.from_dict({"full_res_decoder_kernel": 2})
 
 
 def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
