@@ -5,8 +5,9 @@ from __future__ import annotations
 import pytest
 import torch
 from model_inputs import random_buffers
+from torch import nn
 
-from rtdenoise.models.families.afn import AFN, AFNConfig, parameter_count
+from rtdenoise.models.families.afn import AFN, LEGACY_CONFIG, AFNConfig, parameter_count
 from rtdenoise.models.ops import observe_calls
 from rtdenoise.models.registry import build_model, default_config, families
 
@@ -57,17 +58,90 @@ def test_kernels_are_normalised_and_alpha_in_unit_range(model: AFN):
 def test_registry_and_default_size():
     assert "afn" in families()
     cfg = default_config("afn")
-    assert cfg["widths"] == [24, 32, 48] and cfg["kernel_size"] == 7
+    assert cfg["widths"] == [16, 12, 16, 24, 32] and cfg["kernel_size"] == 7
+    assert cfg["full_res_convs"] == 1 and cfg["full_res_decoder_kernel"] == 1
+    assert cfg["refine_width"] == 4 and cfg["refine_layers"] == 2
     m = build_model("afn")
     assert m.config() == cfg
-    assert m.pad_multiple == 4
-    assert 50_000 < parameter_count(m) < 150_000
+    assert m.pad_multiple == 16
+    assert parameter_count(m) == 66_218
     with pytest.raises(ValueError, match="unknown model family 'nope'"):
         build_model("nope")
     with pytest.raises(ValueError, match="unknown afn config keys"):
         build_model("afn", {"width": 3})
     with pytest.raises(ValueError, match="kernel_size must be odd"):
         AFNConfig.from_dict({"kernel_size": 4})
+
+
+def _conv_macs_per_pixel(model: AFN, h: int = 32, w: int = 32) -> float:
+    """Multiply-adds of every Conv2d per pixel, counted by forward hooks."""
+    macs = []
+
+    def hook(conv, inputs, output):
+        k = conv.kernel_size[0] * conv.kernel_size[1] * conv.in_channels // conv.groups
+        macs.append(output.numel() * k)
+
+    handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Conv2d)]
+    buffers = _buffers(n=1, h=h, w=w)
+    model(buffers, model.initial_state(1, h, w), torch.tensor(1.0))
+    for handle in handles:
+        handle.remove()
+    return sum(macs) / (h * w)
+
+
+def test_default_is_within_lee24_budget_and_legacy_is_not():
+    """Lee24 times kernel prediction at 1.46 ms per 720p frame (about 8 k multiply-adds per
+    pixel, 14 GFLOP): the default network, predictor and refinement together, fits; the model
+    the demo shipped before (45.5 k, 83.9 GFLOP) does not. By hand, per scale 1/2**l (l > 0):
+    9 * (c_in * w + w * w) / 4**l per encoder block, 9 * ((w_below + w) * w + w * w) / 4**l per
+    decoder block; full scale one 3 x 3 conv 14 -> 16 and one 1 x 1 conv 12 + 16 -> 16; heads
+    16 * 50 + 12 * 49 / 4; refinement 9 * (10 * 4 + 4 * 3)."""
+    widths, c_in, macs = (16, 12, 16, 24, 32), 16, 9 * 14 * 16 + (12 + 16) * 16
+    for level, w in enumerate(widths[1:], start=1):
+        macs += 9 * (c_in * w + w * w) / 4**level
+        c_in = w
+    for level, w in enumerate(widths[1:-1], start=1):
+        macs += 9 * ((widths[level + 1] + w) * w + w * w) / 4**level
+    macs += 16 * 50 + 12 * 49 / 4 + 9 * (10 * 4 + 4 * 3)
+    with torch.no_grad():
+        light = _conv_macs_per_pixel(build_model("afn").eval())
+        legacy = _conv_macs_per_pixel(build_model("afn", LEGACY_CONFIG).eval())
+    assert light == macs == 6939.0 and legacy == 45512.0
+    assert 2 * light * 1280 * 720 / 1e9 < 14.0
+
+
+def test_old_checkpoint_configs_rebuild_the_model_they_were_trained_as():
+    """The config stored in the former demo checkpoint (saved before `full_res_convs` existed)
+    rebuilds the former model, not today's default: the same modules and parameter count."""
+    old = {
+        "widths": [24, 32, 48],
+        "kernel_size": 7,
+        "refine_width": 16,
+        "refine_layers": 3,
+        "albedo_eps": 0.01,
+        "depth_scale": "log",
+        "history_input": True,
+        "depth_tolerance": 0.1,
+        "normal_threshold": 0.9,
+        "min_alpha": 0.2,
+        "max_history": 64.0,
+    }
+    cfg = AFNConfig.from_dict(old)
+    assert (cfg.full_res_convs, cfg.full_res_decoder_kernel) == (2, 3)
+    assert AFNConfig.from_dict(cfg.to_dict()) == cfg == AFNConfig.from_dict(LEGACY_CONFIG)
+    model = build_model("afn", old)
+    assert len(model.predictor.encoders[0]) == 4  # conv, relu, conv, relu
+    assert parameter_count(model) == 115_830  # the count of the former default (specs table)
+    # a config saved with one full-scale option but before the other gets the other's old value
+    between = {**old, "full_res_convs": 1}
+    assert AFNConfig.from_dict(between).full_res_decoder_kernel == 3
+    # a partial config (overrides) gets today's defaults for what it does not name
+    partial = AFNConfig.from_dict({"widths": [24, 32, 48]})
+    assert (partial.full_res_convs, partial.full_res_decoder_kernel) == (1, 1)
+    with pytest.raises(ValueError, match="full_res_convs must be >= 1"):
+        AFNConfig.from_dict({"full_res_convs": 0})
+    with pytest.raises(ValueError, match="full_res_decoder_kernel must be odd"):
+        AFNConfig.from_dict({"full_res_decoder_kernel": 2})
 
 
 def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):

@@ -17,23 +17,24 @@ runner = CliRunner()
 def test_bench_model_reports_every_path_and_stage(tmp_path, monkeypatch):
     monkeypatch.setenv("COLUMNS", "200")  # one table row per line
     out = tmp_path / "bench.json"
+    # 48x32: a multiple of demo:afn's pad multiple (16), so the stages see the given size
     res = runner.invoke(
-        app, ["model", "demo:afn", "--size", "40x24", "--repeats", "1", "--json", str(out)]
+        app, ["model", "demo:afn", "--size", "48x32", "--repeats", "1", "--json", str(out)]
     )
     assert res.exit_code == 0, res.output
     data = json.loads(out.read_text())
     assert set(data["model_ms"]) == {"torch", "torch_deployed", "ort_fast", "ort_portable"}
     ops = sorted((s["op"], tuple(s["shape"][2:])) for s in data["stages"])
     assert ops == [
-        ("AdaptiveFusion", (24, 40)),
-        ("KernelApply", (12, 20)),
-        ("KernelApply", (24, 40)),
-        ("Reproject", (24, 40)),
+        ("AdaptiveFusion", (32, 48)),
+        ("KernelApply", (16, 24)),
+        ("KernelApply", (32, 48)),
+        ("Reproject", (32, 48)),
     ]
     assert all(s["calls_per_frame"] == 1 for s in data["stages"])
     # stages are labelled WIDTHxHEIGHT, as --size is given (the tensors are N, C, H, W)
-    assert "KernelApply 40x24 x1" in res.output and "KernelApply 20x12 x1" in res.output
-    assert "afn at 40x24" in res.output
+    assert "KernelApply 48x32 x1" in res.output and "KernelApply 24x16 x1" in res.output
+    assert "afn at 48x32" in res.output
 
 
 def test_bench_op_and_its_errors():

@@ -10,6 +10,7 @@ import torch
 import torch.nn.functional as F
 from model_inputs import random_buffers
 
+from rtdenoise.export.deploy import to_deploy
 from rtdenoise.models.families.afn import parameter_count
 from rtdenoise.models.families.wskp import WSKP, WSKPConfig
 from rtdenoise.models.ops import observe_calls
@@ -126,6 +127,22 @@ def test_registry_config_and_size():
         WSKPConfig.from_dict({"sizes": [3, 5, 9]})
     with pytest.raises(ValueError, match="layers"):
         WSKPConfig.from_dict({"layers": 1})
+
+
+def test_three_layers_is_lee24s_timed_size():
+    """Lee24 times the 3-layer WSKPN: 10 -> 14 -> 14 -> 12, one folded 5 x 5 conv per block,
+    25 * (140 + 196 + 168) = 12.6 k multiply-adds per pixel (23.2 GFLOP per 720p frame)."""
+    m = build_model("wskp", {"layers": 3})
+    blocks = m.importance_net.blocks
+    assert [(b.in_ch, b.out_ch, b.identity is not None) for b in blocks] == [
+        (10, 14, False),
+        (14, 14, True),
+        (14, 12, False),
+    ]
+    deployed = to_deploy(m)
+    convs = [c for c in deployed.modules() if isinstance(c, torch.nn.Conv2d)]
+    assert [c.kernel_size for c in convs] == [(5, 5)] * 3
+    assert sum(c.weight.numel() for c in convs) == 25 * (140 + 196 + 168) == 12_600
 
 
 def test_exports_one_5x5_conv_per_block_and_matches_ort(model: WSKP):

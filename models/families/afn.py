@@ -31,14 +31,33 @@ Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
   is huge, e.g. 1e4); "linear": d / max d (the paper's text).
 - `history_input`: the TA blend weight a (1 on fresh pixels, min_alpha on converged ones) is
   an extra input channel so the network knows how reliable r_TA is (not in the paper).
-- Autoencoder: `widths` per scale (default 24, 32, 48 at 1, 1/2, 1/4), two 3 x 3 convs + ReLU
-  per scale, 2 x 2 average pooling down, nearest 2 x upsampling + skip concatenation up.
-  Heads are 1 x 1 convs. Kernel size 7 for both kernels (the paper's k).
-- Refinement R: `refine_layers` 3 x 3 convs of width `refine_width` on
-  [log1p(i), albedo, normal, depth]; the residual is added in the log1p domain,
-  o = expm1(max(log1p(max(i, 0)) + R, 0)), which keeps the output >= 0 (the fused image can
-  be slightly negative: eq. (3) is an unsharp-mask-like difference).
+- Autoencoder ("light-weight", III-B, timed at 1.46 ms per 720p frame on an RTX 2080 Ti, i.e.
+  about 8 k multiply-adds per pixel): `widths` per scale (default 16, 12, 16, 24, 32 at 1,
+  1/2, ..., 1/16), 3 x 3 convs + ReLU, two per block below full scale; 2 x 2 average pooling
+  down, nearest 2 x upsampling + skip concatenation up. Heads are 1 x 1 convs. Kernel size 7
+  for both kernels (the paper's k). Every conv at full scale costs 4 x its 1/2-scale twin, yet
+  K_TA and alpha are sliced there: the full scale keeps 16 channels (the kernels' 49 taps come
+  from them) but few convs, `full_res_convs` (1) in the encoder and decoder blocks, and the
+  decoder's are `full_res_decoder_kernel` x `full_res_decoder_kernel` (1: they mix the
+  upsampled context with the skip per pixel; the encoder's 3 x 3 sees the neighbourhood).
+  Trained like the demo, this default scores 27.29 dB on the committed sequences (the former
+  83.9 GFLOP default 27.20); an 8-channel full scale (widths 8, 12, 16, 24, one 3 x 3
+  full-scale conv per block, 12.9 GFLOP) scored 26.30 dB, and widths 8, 12, 16, 24, 32 with
+  two full-scale convs (13.7 GFLOP) followed its training loss to step 850 (stopped there).
+- Refinement R ("small", 0.89 ms in Lee24 Table 10): `refine_layers` (2) 3 x 3 convs of width
+  `refine_width` (4) on [log1p(i), albedo, normal, depth]; the residual is added in the log1p
+  domain, o = expm1(max(log1p(max(i, 0)) + R, 0)), which keeps the output >= 0 (the fused
+  image can be slightly negative: eq. (3) is an unsharp-mask-like difference). Small because
+  it earned nothing in our training: the former demo (width 16, 3 layers, 7.7 GFLOP) scored
+  27.23 dB on the committed sequences with its residual set to zero, 27.20 dB with it.
 - H and W must be multiples of `pad_multiple` = 2 ** (len(widths) - 1).
+
+Cost (FLOP = 2 x multiply-adds of the Conv layers, `benchmarks/flops.py`): the defaults take
+6.94 k multiply-adds per pixel, 12.8 GFLOP per 1280 x 720 frame (predictor 11.9, refinement
+0.9), within Lee24's budget (<= 14). `LEGACY_CONFIG` (widths 24, 32, 48, refinement width 16,
+two 3 x 3 convs in every block; 45.5 k, 83.9 GFLOP) is the model the demo shipped before.
+Checkpoints store their whole config and rebuild the model they were trained as; those saved
+before the full-scale options existed get what they had then (`AFNConfig.from_dict`).
 """
 
 from __future__ import annotations
@@ -69,47 +88,96 @@ class AFNConfig(AccumulatingConfig):
 
     family = "afn"
 
-    widths: tuple[int, ...] = (24, 32, 48)
+    widths: tuple[int, ...] = (16, 12, 16, 24, 32)
     kernel_size: int = 7
-    refine_width: int = 16
-    refine_layers: int = 3
+    refine_width: int = 4
+    refine_layers: int = 2
     depth_scale: str = "log"  # "log" or "linear"
     history_input: bool = True
+    full_res_convs: int = 1  # convs in the full-scale encoder and decoder blocks
+    full_res_decoder_kernel: int = 1  # their kernel size in the decoder block
+
+    @classmethod
+    def from_dict(cls, data: dict | None) -> AFNConfig:
+        """As `FamilyConfig.from_dict`, except that a complete config saved before a field
+        existed (every key of `_PRE_LIGHT_KEYS`, as `to_dict` wrote it into checkpoints and
+        ONNX metadata) gets the value that field had then, not today's default: an old
+        checkpoint rebuilds the model it was trained as."""
+        data = dict(data or {})
+        if _PRE_LIGHT_KEYS <= set(data):
+            for key, value in _ADDED_FIELDS.items():
+                data.setdefault(key, value)
+        return super().from_dict(data)
 
     def validate(self) -> None:
         if len(self.widths) < 2 or any(w < 1 for w in self.widths):
             raise self.fail(f"widths must list >= 2 positive sizes, got {self.widths}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:
             raise self.fail(f"kernel_size must be odd, got {self.kernel_size}")
+        if self.full_res_decoder_kernel < 1 or self.full_res_decoder_kernel % 2 == 0:
+            k = self.full_res_decoder_kernel
+            raise self.fail(f"full_res_decoder_kernel must be odd, got {k}")
+        if self.full_res_convs < 1:
+            raise self.fail(f"full_res_convs must be >= 1, got {self.full_res_convs}")
         if self.refine_layers < 1:
             raise self.fail(f"refine_layers must be >= 1, got {self.refine_layers}")
         if self.depth_scale not in ("log", "linear"):
             raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
 
 
-def _conv_block(c_in: int, c_out: int) -> nn.Sequential:
-    return nn.Sequential(
-        nn.Conv2d(c_in, c_out, 3, padding=1),
-        nn.ReLU(inplace=True),
-        nn.Conv2d(c_out, c_out, 3, padding=1),
-        nn.ReLU(inplace=True),
-    )
+# The AFNConfig keys of every checkpoint saved before the full-scale options were added, and
+# the value each added field had implicitly then (two 3 x 3 convs per full-scale block).
+_PRE_LIGHT_KEYS = frozenset(
+    ("widths", "kernel_size", "refine_width", "refine_layers", "depth_scale", "history_input")
+    + ("albedo_eps", "depth_tolerance", "normal_threshold", "min_alpha", "max_history")
+)
+_ADDED_FIELDS = {"full_res_convs": 2, "full_res_decoder_kernel": 3}
+
+# The model demo:afn shipped before the light default (83.9 GFLOP per 720p frame).
+LEGACY_CONFIG = {
+    "widths": [24, 32, 48],
+    "refine_width": 16,
+    "refine_layers": 3,
+    "full_res_convs": 2,
+    "full_res_decoder_kernel": 3,
+}
+
+
+def _conv_block(c_in: int, c_out: int, convs: int = 2, kernel: int = 3) -> nn.Sequential:
+    mods: list[nn.Module] = []
+    for i in range(convs):
+        conv = nn.Conv2d(c_in if i == 0 else c_out, c_out, kernel, padding=kernel // 2)
+        mods += [conv, nn.ReLU(inplace=True)]
+    return nn.Sequential(*mods)
 
 
 class KernelPredictor(nn.Module):
     """Lee24 eq. (1): M(r_1spp, r_TA, f) -> K_1spp (1/2 scale), K_TA and alpha (full scale)."""
 
-    def __init__(self, in_channels: int, widths: tuple[int, ...], kernel_size: int) -> None:
+    def __init__(
+        self,
+        in_channels: int,
+        widths: tuple[int, ...],
+        kernel_size: int,
+        full_res_convs: int = 2,
+        full_res_decoder_kernel: int = 3,
+    ) -> None:
         super().__init__()
         taps = kernel_size * kernel_size
+        convs = [full_res_convs] + [2] * (len(widths) - 1)  # per scale
         self.encoders = nn.ModuleList()
         c = in_channels
-        for w in widths:
-            self.encoders.append(_conv_block(c, w))
+        for w, n in zip(widths, convs, strict=True):
+            self.encoders.append(_conv_block(c, w, n))
             c = w
         # decoders[l] produces the feature at scale 1 / 2**l from the one below and skip l.
         self.decoders = nn.ModuleList(
-            _conv_block(widths[level + 1] + widths[level], widths[level])
+            _conv_block(
+                widths[level + 1] + widths[level],
+                widths[level],
+                convs[level],
+                full_res_decoder_kernel if level == 0 else 3,
+            )
             for level in range(len(widths) - 1)
         )
         self.head_1spp = nn.Conv2d(widths[1], taps, 1)
@@ -174,7 +242,13 @@ class AFN(DenoiserModel):
         self.pad_multiple = 2 ** (len(config.widths) - 1)
         # r_1spp (3) + r_TA (3) + albedo (3) + normal (3) + depth (1) [+ TA weight (1)]
         in_channels = 13 + int(config.history_input)
-        self.predictor = KernelPredictor(in_channels, config.widths, config.kernel_size)
+        self.predictor = KernelPredictor(
+            in_channels,
+            config.widths,
+            config.kernel_size,
+            config.full_res_convs,
+            config.full_res_decoder_kernel,
+        )
         self.refine = Refinement(7 + 3, config.refine_width, config.refine_layers)
 
     def forward(
@@ -218,4 +292,11 @@ def parameter_count(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
-__all__ = ["AFN", "AFNConfig", "KernelPredictor", "Refinement", "parameter_count"]
+__all__ = [
+    "AFN",
+    "AFNConfig",
+    "LEGACY_CONFIG",
+    "KernelPredictor",
+    "Refinement",
+    "parameter_count",
+]

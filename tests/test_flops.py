@@ -1,0 +1,60 @@
+"""benchmarks/flops.py counts the Conv multiply-adds of an exported graph; the shipped demo:afn
+fits Lee24's budget (<= 14 GFLOP per 1280 x 720 frame, FLOP = 2 x multiply-adds)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import onnx
+import pytest
+from onnx import TensorProto, helper
+
+from rtdenoise.shipped import MODELS_DIR
+
+SPEC = importlib.util.spec_from_file_location(
+    "flops", Path(__file__).resolve().parents[1] / "benchmarks" / "flops.py"
+)
+flops = sys.modules["flops"] = importlib.util.module_from_spec(SPEC)
+SPEC.loader.exec_module(flops)
+
+LEE24_BUDGET_GFLOP = 14.0  # kernel prediction in 1.46 ms on an RTX 2080 Ti (fidelity-and-specs)
+
+
+def _weight(name: str, shape: tuple[int, ...]) -> onnx.TensorProto:
+    return helper.make_tensor(name, TensorProto.FLOAT, shape, np.zeros(shape, np.float32).ravel())
+
+
+def test_counts_a_hand_made_graph_exactly():
+    """3 -> 4 3x3 conv at full size, 2x2 pooling, 4 -> 8 1x1 conv in 2 groups at half size."""
+    graph = helper.make_graph(
+        [
+            helper.make_node("Conv", ["x", "w1"], ["a"], pads=[1, 1, 1, 1]),
+            helper.make_node("AveragePool", ["a"], ["b"], kernel_shape=[2, 2], strides=[2, 2]),
+            helper.make_node("Conv", ["b", "w2"], ["y"], group=2),
+        ],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, "h", "w"])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, None)],
+        [_weight("w1", (4, 3, 3, 3)), _weight("w2", (8, 2, 1, 1))],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    costs = flops.conv_costs(model, 40, 60)
+    assert [c.output for c in costs] == [(1, 4, 40, 60), (1, 8, 20, 30)]
+    assert [c.macs for c in costs] == [40 * 60 * 4 * 27, 20 * 30 * 8 * 2]
+    assert flops.conv_gflop(model, 40, 60) == pytest.approx(2 * (259_200 + 9_600) / 1e9)
+
+
+def test_shipped_afn_is_within_lee24_budget(capsys):
+    """The graph count equals the torch modules' count (tests/test_afn_model.py: 6939 multiply-
+    adds per pixel), so the custom ops' shape rules carried the sizes to the refinement."""
+    costs = flops.conv_costs(MODELS_DIR / "afn.onnx", 720, 1280)
+    macs = sum(c.macs for c in costs)
+    assert macs == 6939 * 1280 * 720
+    assert 2 * macs / 1e9 <= LEE24_BUDGET_GFLOP
+    flops.main(["demo:afn", "--size", "1280x720", "--json"])
+    (result,) = json.loads(capsys.readouterr().out)
+    assert result["gflop"] == pytest.approx(2 * macs / 1e9) and result["convs"] == len(costs)
