@@ -97,17 +97,18 @@ def _plot(path: Path, result: dict[str, Any], size: list[int]) -> None:
 
     row = next(r for r in result["speed"] if r["size"] == size)
     fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
-    for name, q in result["quality"].items():
+    for name, q in result["quality"].items():  # one colour per contender, named in the legend
         ms = row["summary"][name]["median_ms"]
         lo, hi = row["summary"][name]["min_ms"], row["summary"][name]["max_ms"]
-        ax.errorbar(ms, q["mean"]["psnr"], xerr=[[ms - lo], [hi - ms]], fmt="o", capsize=3)
-        ax.annotate(name, (ms, q["mean"]["psnr"]), textcoords="offset points", xytext=(6, 4))
+        ax.errorbar(
+            ms, q["mean"]["psnr"], xerr=[[ms - lo], [hi - ms]], fmt="o", capsize=3, label=name
+        )
     ax.axhline(result["noisy"]["mean"]["psnr"], color="gray", ls="--", lw=1, label="noisy input")
     ax.set_xscale("log")
     ax.set_xlabel(f"ms per frame at {size[1]}x{size[0]} (median, min-max)")
     ax.set_ylabel("PSNR dB (tau-mapped, pooled)")
     ax.set_title(f"quality vs time, {result['machine']}")
-    ax.legend(loc="lower right")
+    ax.legend(loc="lower right", fontsize=7)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
