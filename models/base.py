@@ -176,3 +176,8 @@ def register_family(cls: type[DenoiserModel]) -> type[DenoiserModel]:
         raise ValueError(f"{cls.__name__}: config_class.family must be {cls.family!r}")
     FAMILIES[cls.family] = cls
     return cls
+
+
+def parameter_count(model: nn.Module) -> int:
+    """Number of trainable parameters of a model or one of its parts."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -9,7 +9,7 @@ import pytest
 import torch
 from model_inputs import random_buffers
 
-from rtdenoise.models.families.afn import parameter_count
+from rtdenoise.models.base import parameter_count
 from rtdenoise.models.families.nbg import NBG, NBGConfig, gamma_map, suppress_outliers
 from rtdenoise.models.ops import observe_calls
 from rtdenoise.models.ops.bilateral_grid import bilateral_grid

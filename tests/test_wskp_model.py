@@ -11,7 +11,7 @@ import torch.nn.functional as F
 from model_inputs import random_buffers
 
 from rtdenoise.export.deploy import to_deploy
-from rtdenoise.models.families.afn import parameter_count
+from rtdenoise.models.base import parameter_count
 from rtdenoise.models.families.wskp import WSKP, WSKPConfig
 from rtdenoise.models.ops import observe_calls
 from rtdenoise.models.registry import build_model, default_config, families

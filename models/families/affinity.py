@@ -65,7 +65,14 @@ from rtdenoise.runtime.samples import (
     feature_offsets,
 )
 
-from ..base import DenoiserModel, FamilyConfig, RuntimeOption, StateSpec, register_family
+from ..base import (
+    DenoiserModel,
+    FamilyConfig,
+    RuntimeOption,
+    StateSpec,
+    parameter_count,
+    register_family,
+)
 from ..ops.affinity_filter import affinity_filter
 from ..ops.temporal_affinity_filter import temporal_affinity_filter
 
@@ -425,11 +432,6 @@ def smape_l1(a: torch.Tensor, b: torch.Tensor, eps: float) -> torch.Tensor:
     num = (a - b).abs().sum(dim=-3)
     den = a.abs().sum(dim=-3) + b.abs().sum(dim=-3) + eps
     return (num / den).mean() / 3.0
-
-
-def parameter_count(model: nn.Module) -> int:
-    """Number of trainable parameters."""
-    return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
 __all__ = [

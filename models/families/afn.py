@@ -75,7 +75,7 @@ from ..accumulation import (
     AccumulatingConfig,
     demodulate_and_accumulate,
 )
-from ..base import DenoiserModel, register_family
+from ..base import DenoiserModel, parameter_count, register_family
 from ..features import depth01
 from ..functional import channel_softmax
 from ..ops.adaptive_fusion import adaptive_fusion
@@ -285,11 +285,6 @@ class AFN(DenoiserModel):
 
         # 8. Remodulation.
         return refined * frame.modulation, frame.state
-
-
-def parameter_count(model: nn.Module) -> int:
-    """Number of trainable parameters."""
-    return sum(p.numel() for p in model.parameters() if p.requires_grad)
 
 
 __all__ = [
