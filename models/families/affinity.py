@@ -244,10 +244,7 @@ class Affinity(DenoiserModel):
 
     def __init__(self, config: AffinityConfig | dict | None = None) -> None:
         super().__init__()
-        if not isinstance(config, AffinityConfig):
-            config = AffinityConfig.from_dict(config)
-        config.validate()
-        self.cfg = config
+        self.cfg = config = AffinityConfig.of(config)
         self.pad_multiple = 2 ** len(config.encoder)
         self.offsets = feature_offsets(config.sample_features)
         self.embedding = Embedding(

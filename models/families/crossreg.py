@@ -187,10 +187,7 @@ class CrossReg(DenoiserModel):
 
     def __init__(self, config: CrossRegConfig | dict | None = None) -> None:
         super().__init__()
-        if not isinstance(config, CrossRegConfig):
-            config = CrossRegConfig.from_dict(config)
-        config.validate()
-        self.cfg = config
+        self.cfg = config = CrossRegConfig.of(config)
         self.pad_multiple = 2 ** (len(config.widths) - 1)
         # [f~A, f~B, R f^p, albedo, normal] -> 5 bandwidths + alpha
         self.unet = UNet(15, tuple(config.widths), 6)

@@ -211,10 +211,7 @@ class NBG(DenoiserModel):
 
     def __init__(self, config: NBGConfig | dict | None = None) -> None:
         super().__init__()
-        if not isinstance(config, NBGConfig):
-            config = NBGConfig.from_dict(config)
-        config.validate()
-        self.cfg = config
+        self.cfg = config = NBGConfig.of(config)
         # G guides and G - 1 composition weights (Meng20 Fig. 2: 3 + 2 = 5)
         self.guide_net = GuideNet(INPUT_CHANNELS, 2 * config.grids - 1, config)
 
