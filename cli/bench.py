@@ -34,6 +34,9 @@ LABELS = {
 }
 
 
+FrameSize = Annotated[str, typer.Option(help="Frame size WIDTHxHEIGHT.")]
+TimedFrames = Annotated[int, typer.Option(help="Timed frames (after one warm-up frame).")]
+JsonOut = Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")]
 Threads = Annotated[
     int | None,
     typer.Option(
@@ -55,10 +58,10 @@ def bench_model(
         str,
         typer.Argument(help="Checkpoint (.pt), demo:<family>, or a family name (random weights)."),
     ],
-    size: Annotated[str, typer.Option(help="Frame size WIDTHxHEIGHT.")] = "1280x720",
-    repeats: Annotated[int, typer.Option(help="Timed frames (after one warm-up frame).")] = 5,
+    size: FrameSize = "1280x720",
+    repeats: TimedFrames = 5,
     threads: Threads = None,
-    json_path: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
+    json_path: JsonOut = None,
 ) -> None:
     """Time one frame of a denoiser in PyTorch eager (training and deployed form), ONNX
     Runtime with the fast kernels, and ONNX Runtime portable, plus each filter stage the
@@ -123,10 +126,10 @@ def bench_stages(
         str,
         typer.Argument(help="demo:<family> (its shipped ONNX) or a checkpoint (.pt, exported)."),
     ],
-    size: Annotated[str, typer.Option(help="Frame size WIDTHxHEIGHT.")] = "1280x720",
-    repeats: Annotated[int, typer.Option(help="Timed frames (after one warm-up frame).")] = 3,
+    size: FrameSize = "1280x720",
+    repeats: TimedFrames = 3,
     threads: Threads = None,
-    json_path: Annotated[Path | None, typer.Option("--json", help="Also write JSON here.")] = None,
+    json_path: JsonOut = None,
 ) -> None:
     """Time each stage of one frame (regression, U-Net, filter, backward + Adam, other) in
     PyTorch eager and ONNX Runtime with the fast kernels (its node profiler), and the whole
