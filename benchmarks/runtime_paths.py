@@ -44,6 +44,8 @@ def parse_variant(text: str) -> tuple[str, dict]:
             kwargs[key] = None
         elif value.lower() == "auto":
             kwargs[key] = "auto"
+        elif value in ("native", "extensions"):  # fast_kernels=native: the bridge
+            kwargs[key] = value
         elif key in BOOLS or value.lower() in ("true", "false"):
             kwargs[key] = value.lower() in ("1", "true")
         else:

@@ -134,9 +134,10 @@ def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provid
     return resolved
 
 
-def _register_fast_kernels(options: ort.SessionOptions) -> Any:
-    """Register the numba kernels of the rtdenoise custom ops: the `fastops` module, or None
-    (with a warning) if absent."""
+def _register_fast_kernels(options: ort.SessionOptions, bridge: str | None) -> tuple[Any, str]:
+    """Register the numba kernels of the rtdenoise custom ops through `bridge` (None: the
+    best available): (the `fastops` module, the bridge used), or (None, "") with a warning if
+    absent."""
     try:
         fastops = importlib.import_module(".fastops", __package__)
     except ModuleNotFoundError as exc:
@@ -148,10 +149,9 @@ def _register_fast_kernels(options: ort.SessionOptions) -> Any:
                 RuntimeWarning,
                 stacklevel=3,
             )
-            return None
+            return None, ""
         raise
-    fastops.register_fast_kernels(options)
-    return fastops
+    return fastops, fastops.register_fast_kernels(options, bridge)
 
 
 def _count_nonfinite(a: np.ndarray) -> int:
@@ -247,7 +247,10 @@ class Denoiser:
 
     model: a path to an .onnx file, `demo:<family>`, or the serialized model bytes.
     fast_kernels: register the native (numba) kernels of the rtdenoise custom ops; False runs
-        their portable ONNX function bodies, inlined by ONNX Runtime.
+        their portable ONNX function bodies, inlined by ONNX Runtime. A string picks how ONNX
+        Runtime reaches the kernels: "native" (the compiled bridge, zero-copy; what True uses
+        where it was built) or "extensions" (onnxruntime-extensions, which copies every input
+        and output); `bridge` says which one runs.
     threads: threads of ONNX Runtime's intra-op pool and of the fast (numba) kernels, which
         run between its ops (None: each library's default, all cores). The kernels use one
         thread on frames below `serial_below` pixels (padded; default SERIAL_KERNELS_BELOW).
@@ -268,7 +271,7 @@ class Denoiser:
         self,
         model: ModelSource,
         *,
-        fast_kernels: bool = True,
+        fast_kernels: bool | str = True,
         threads: int | None = None,
         spinning: bool | None = None,
         providers: Sequence[Provider] | str | None = None,
@@ -293,7 +296,17 @@ class Denoiser:
             options.intra_op_num_threads = threads
         self.threads = threads
         self.serial_below = SERIAL_KERNELS_BELOW
-        self._fastops = _register_fast_kernels(options) if fast_kernels else None
+        self.bridge = ""  # how ONNX Runtime reaches the fast kernels: "native", "extensions"
+        if fast_kernels:
+            wanted_bridge = fast_kernels if isinstance(fast_kernels, str) else None
+            if wanted_bridge is not None and wanted_bridge not in ("native", "extensions"):
+                raise InputError(
+                    f"fast_kernels={fast_kernels!r}: expected True, False, 'native' or "
+                    "'extensions'"
+                )
+            self._fastops, self.bridge = _register_fast_kernels(options, wanted_bridge)
+        else:
+            self._fastops = None
         self.fast_kernels = self._fastops is not None
         if spinning is None and self.fast_kernels:
             spinning = False  # idle ORT workers would spin while a kernel needs the cores

@@ -28,9 +28,7 @@ No torch here.
 from __future__ import annotations
 
 import sys
-import threading
 import warnings
-from collections import Counter
 from collections.abc import Iterator, Sequence
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 
@@ -39,6 +37,14 @@ import onnxruntime as ort
 
 from rtdenoise.ops import DOMAIN
 
+from .kernel_calls import (  # noqa: F401  (re-exported)
+    CALLS,
+    KernelError,
+    _nan_outputs,
+    _record,
+    raise_kernel_errors,
+    take_kernel_error,
+)
 from .kernels import KERNELS, FastKernel
 from .memory import tune_allocator  # noqa: F401  (re-exported)
 
@@ -68,75 +74,7 @@ HOOK_VERSIONS = ("0.15.0", "0.15.2")
 
 FAST_OPS: tuple[str, ...] = tuple(KERNELS)
 
-# Calls per op through ORT (tests use it to prove the fast kernel ran).
-CALLS: Counter[str] = Counter()
-
 _hook_installed = False
-
-
-class KernelError(RuntimeError):
-    """A fast kernel raised inside ONNX Runtime; the original exception is its __cause__."""
-
-
-# The first exception a kernel raised in this thread since the last `raise_kernel_errors`.
-_pending = threading.local()
-
-
-def _record(exc: BaseException, op: str) -> None:
-    """Remember the first failure of this thread's run (never raises)."""
-    try:
-        if getattr(_pending, "error", None) is None:
-            _pending.error, _pending.op = exc, op
-    except BaseException:  # nothing may leave an op
-        pass
-
-
-def _nan_outputs(shapes: Sequence[tuple[int, ...]]) -> tuple[np.ndarray, ...]:
-    """NaN arrays of `shapes` (zero-size ones if even that fails): what a failed op returns."""
-    try:
-        return tuple(np.full(s, np.nan, np.float32) for s in shapes)
-    except BaseException:
-        return tuple(np.zeros((0,), np.float32) for _ in shapes)
-
-
-def take_kernel_error() -> tuple[BaseException, str] | None:
-    """(exception, op name) of the first kernel failure in this thread since the last call,
-    cleared; None if there was none."""
-    error = getattr(_pending, "error", None)
-    _pending.error = None
-    return None if error is None else (error, _pending.op)
-
-
-@contextmanager
-def raise_kernel_errors() -> Iterator[None]:
-    """Wrap `session.run`: a kernel's exception is raised here, after the run returned.
-
-    KeyboardInterrupt and SystemExit are re-raised as they are; any other exception as a
-    `KernelError` naming the op, chained to the original. A host driving a session with
-    `register_fast_kernels` itself wraps its runs in this (the outputs of a run whose kernel
-    failed are NaN, never a crash).
-    """
-    take_kernel_error()  # a stale failure of an unchecked run is not this run's
-    try:
-        yield
-    except BaseException:  # e.g. ONNX Runtime failing on a failed op's empty output
-        failure = take_kernel_error()
-        if failure is None:
-            raise
-        raise _as_raised(*failure)  # noqa: B904  (the kernel's error is the cause)
-    failure = take_kernel_error()
-    if failure is not None:
-        raise _as_raised(*failure)
-
-
-def _as_raised(exc: BaseException, op: str) -> BaseException:
-    """What the caller sees of a kernel's exception: interrupts as they are, else KernelError."""
-    if not isinstance(exc, Exception):  # KeyboardInterrupt, SystemExit, ...
-        return exc
-    first = (str(exc).strip().splitlines() or [""])[0]
-    error = KernelError(f"fast kernel {op} failed: {type(exc).__name__}: {first}")
-    error.__cause__ = exc
-    return error
 
 
 def _array_hook(k_id: int, feed: list, attributes: dict) -> tuple:
@@ -258,13 +196,36 @@ def _numba_threads(threads: int) -> Iterator[None]:
         numba.set_num_threads(before)
 
 
-def register_fast_kernels(so: ort.SessionOptions) -> None:
-    """Make sessions created with `so` run the rtdenoise ops with the numba kernels."""
-    install_array_hook()
-    so.register_custom_ops_library(get_library_path())
+BRIDGES = ("native", "extensions")
+
+
+def default_bridge() -> str:
+    """"native" when the compiled bridge loads (runtime/native_ops.py), else "extensions"."""
+    from . import native_ops
+
+    return "native" if native_ops.available() else "extensions"
+
+
+def register_fast_kernels(so: ort.SessionOptions, bridge: str | None = None) -> str:
+    """Make sessions created with `so` run the rtdenoise ops with the numba kernels, through
+    `bridge`: "native" (no copies; the default where it was built) or "extensions"
+    (onnxruntime-extensions' Python ops, which copy every input and output). Returns the
+    bridge used."""
+    bridge = bridge or default_bridge()
+    if bridge == "native":
+        from . import native_ops
+
+        native_ops.register(so)
+    elif bridge == "extensions":
+        install_array_hook()
+        so.register_custom_ops_library(get_library_path())
+    else:
+        raise ValueError(f"unknown fast-kernel bridge {bridge!r}; expected one of {BRIDGES}")
+    return bridge
 
 
 __all__ = [
+    "BRIDGES",
     "CALLS",
     "FAST_OPS",
     "KernelError",
@@ -272,6 +233,7 @@ __all__ = [
     "install_array_hook",
     "kernel_threads",
     "raise_kernel_errors",
+    "default_bridge",
     "register_fast_kernels",
     "take_kernel_error",
     "tune_allocator",

@@ -1,5 +1,6 @@
 """Run a custom op in every form: torch reference, ORT portable (function body), ORT with the
-fast kernel registered, and the fast kernel called directly. Shared by the op tests.
+fast kernel registered (through the native bridge, the default, and through
+onnxruntime-extensions), and the fast kernel called directly. Shared by the op tests.
 
 Tolerance: max |a - b| / max(1, max |ref|) <= RTOL (float32; different summation order).
 """
@@ -26,12 +27,13 @@ def rel_err(a: np.ndarray, ref: np.ndarray) -> float:
 
 
 @functools.cache
-def session(op: str, attrs: tuple, fast: bool) -> ort.InferenceSession:
-    """ORT session for a single-op model with every dim dynamic (cached per op/attrs/path)."""
+def session(op: str, attrs: tuple, bridge: str) -> ort.InferenceSession:
+    """ORT session for a single-op model with every dim dynamic (cached per op/attrs/path);
+    the fast kernel registered through `bridge` ("native", "extensions"), or none ("")."""
     model = eops.single_op_model(op, None, dict(attrs))
     so = ort.SessionOptions()
-    if fast:
-        fastops.register_fast_kernels(so)
+    if bridge:
+        assert fastops.register_fast_kernels(so, bridge) == bridge
     return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
 
 
@@ -47,10 +49,10 @@ def all_forms(op: str, inputs: list[np.ndarray], attrs: dict) -> dict[str, np.nd
         ref = TORCH_OPS[op].reference(*[torch.from_numpy(x) for x in inputs], **attrs)
         outs["torch"] = first(ref).numpy()
     feed = dict(zip(spec.input_names, inputs, strict=True))
-    for name, fast in (("portable", False), ("ort_fast", True)):
+    for name, bridge in (("portable", ""), ("ort_fast", "native"), ("ort_ext", "extensions")):
         before = fastops.CALLS[op]
-        outs[name] = session(op, tuple(sorted(attrs.items())), fast).run(None, feed)[0]
-        assert fastops.CALLS[op] - before == (1 if fast else 0), name
+        outs[name] = session(op, tuple(sorted(attrs.items())), bridge).run(None, feed)[0]
+        assert fastops.CALLS[op] - before == (1 if bridge else 0), name
     outs["numba"] = first(KERNELS[op](*inputs, **attrs))
     return outs
 

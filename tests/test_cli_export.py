@@ -27,12 +27,13 @@ def test_export_writes_validated_model(checkpoint, tmp_path):
     out = tmp_path / "afn.onnx"
     result = runner.invoke(app, [str(checkpoint), "-o", str(out), "--frames", "8", "--size", "32"])
     assert result.exit_code == 0, result.output
-    assert "KernelApply x2" in result.output and "AdaptiveFusion x1" in result.output
+    assert "SoftmaxKernelApply x2" in result.output and "AdaptiveFusion x1" in result.output
     model = onnx.load(str(out))
     meta = {p.key: p.value for p in model.metadata_props}
     assert meta["rtdenoise.family"] == "afn"
     assert json.loads(meta["rtdenoise.config"])["widths"] == [8, 12]
-    assert {f.name for f in model.functions} == {"KernelApply", "AdaptiveFusion", "Reproject"}
+    functions = {f.name for f in model.functions}
+    assert functions == {"SoftmaxKernelApply", "AdaptiveFusion", "Reproject"}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afn.onnx"]
 
 

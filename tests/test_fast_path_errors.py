@@ -1,7 +1,8 @@
-"""On the fast path (numba kernels as onnxruntime-extensions Python ops) an exception inside a
-kernel, or Ctrl-C while one runs, used to abort the process (SIGABRT, exit 134). It must
-become a Python exception in the caller after `session.run` returns, leave the history
-intact, and `denoise-run` must exit 130 with only complete files.
+"""On the fast path (numba kernels called by ONNX Runtime through a custom-op bridge: the
+native one or onnxruntime-extensions' Python ops) an exception inside a kernel, or Ctrl-C while
+one runs, used to abort the process (SIGABRT, exit 134). It must become a Python exception in
+the caller after `session.run` returns, leave the history intact, and `denoise-run` must exit
+130 with only complete files.
 
 Every scenario runs in a child process, so that a regression aborts the child, not pytest.
 """
@@ -33,7 +34,7 @@ PATCH = RESTORE_SIGINT + textwrap.dedent(
     import os, signal, sys
     import rtdenoise.runtime.kernels  # noqa: F401
     fast_kernel = sys.modules["rtdenoise.runtime.kernels.fast_kernel"]
-    ORIGINAL = fast_kernel.FastKernel.__call__
+    ORIGINAL = fast_kernel.FastKernel.compute
     CALLS = [0]
 
     def failing(mode, after=0):
@@ -67,20 +68,22 @@ SCRIPT_DENOISER = PATCH + textwrap.dedent(
                 "depth": np.ones((1, 16, 16), np.float32),
                 "motion": np.zeros((2, 16, 16), np.float32)}
     frames = [frame() for _ in range(3)]
-    clean = Denoiser("demo:wskp", threads=1)
+    BRIDGE = sys.argv[1]
+    clean = Denoiser("demo:wskp", threads=1, fast_kernels=BRIDGE)
+    assert clean.bridge == BRIDGE
     expected = [clean.process(f) for f in frames]
 
     result = {}
     for mode in ("memory", "value", "sigint"):
-        den = Denoiser("demo:wskp", threads=1)
+        den = Denoiser("demo:wskp", threads=1, fast_kernels=BRIDGE)
         den.process(frames[0]); den.process(frames[1])
-        fast_kernel.FastKernel.__call__ = failing(mode)
+        fast_kernel.FastKernel.compute = failing(mode)
         try:
             den.process(frames[2])
             caught = None
         except BaseException as exc:
             caught = [type(exc).__name__, str(exc)]
-        fast_kernel.FastKernel.__call__ = ORIGINAL
+        fast_kernel.FastKernel.compute = ORIGINAL
         out = den.process(frames[2])  # the failed call left the history as it was
         result[mode] = {"caught": caught, "same": bool(np.array_equal(out, expected[2])),
                         "frames": den.frames_processed, "index": den.frame_index}
@@ -89,13 +92,13 @@ SCRIPT_DENOISER = PATCH + textwrap.dedent(
     import onnxruntime as ort
     from rtdenoise.runtime import fastops
     so = ort.SessionOptions()
-    fastops.register_fast_kernels(so)
+    fastops.register_fast_kernels(so, BRIDGE)
     sess = ort.InferenceSession(clean.source, so)
     feeds = {k: v[None] for k, v in frames[0].items()}
     feeds["reset"] = np.array(1.0, np.float32)
     for s in clean.state_specs:
         feeds[s.input_name] = np.zeros(s.shape(16, 16), np.float32)
-    fast_kernel.FastKernel.__call__ = failing("value")
+    fast_kernel.FastKernel.compute = failing("value")
     unchecked = sess.run(["output"], feeds)[0]  # no crash: NaN output, the error pending
     try:
         with fastops.raise_kernel_errors():
@@ -103,7 +106,7 @@ SCRIPT_DENOISER = PATCH + textwrap.dedent(
         host = None
     except fastops.KernelError as exc:
         host = [str(exc), type(exc.__cause__).__name__]
-    fast_kernel.FastKernel.__call__ = ORIGINAL
+    fast_kernel.FastKernel.compute = ORIGINAL
     with fastops.raise_kernel_errors():  # nothing stale is raised by a good run
         good = sess.run(["output"], feeds)[0]
     result["host"] = {"unchecked_nan": bool(np.isnan(unchecked).all()), "error": host,
@@ -122,8 +125,9 @@ def _run(script: str, *args: str, timeout: float = 240) -> subprocess.CompletedP
     )
 
 
-def test_kernel_exceptions_and_ctrl_c_become_python_exceptions():
-    proc = _run(SCRIPT_DENOISER)
+@pytest.mark.parametrize("bridge", ["native", "extensions"])
+def test_kernel_exceptions_and_ctrl_c_become_python_exceptions(bridge):
+    proc = _run(SCRIPT_DENOISER, bridge)
     assert proc.returncode == 0, proc.stderr[-2000:]  # 134 (SIGABRT) before the fix
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     for mode, name, text in [
@@ -169,7 +173,7 @@ def check_outputs(out: Path, frames: list[Path]) -> list[str]:
 
 SCRIPT_CLI = PATCH + textwrap.dedent(
     """
-    fast_kernel.FastKernel.__call__ = failing("sigint", after=int(sys.argv[3]))
+    fast_kernel.FastKernel.compute = failing("sigint", after=int(sys.argv[3]))
     from rtdenoise.cli.run import main
     sys.argv = ["denoise-run", sys.argv[1], "-o", sys.argv[2], "--model", "demo:wskp",
                 "--threads", "1"]

@@ -30,17 +30,18 @@ def mirror(k: int, n: int) -> int:
 
 
 def every_form(op: str, inputs: list[np.ndarray], attrs: dict) -> dict[str, list[np.ndarray]]:
-    """{form: all outputs} for torch, ORT portable, ORT fast and the bare numba kernel."""
+    """{form: all outputs} for torch, ORT portable, ORT fast (both bridges) and the bare numba
+    kernel."""
     spec = get_spec(op)
     with torch.no_grad():
         ref = cross_regression_reference if op == "CrossRegression" else None
         ref = ref or cross_bilateral_filter_reference
         outs = {"torch": [t.numpy() for t in ref(*map(torch.from_numpy, inputs), **attrs)]}
     feed = dict(zip(spec.input_names, inputs, strict=True))
-    for name, fast in (("portable", False), ("ort_fast", True)):
+    for name, bridge in (("portable", ""), ("ort_fast", "native"), ("ort_ext", "extensions")):
         before = fastops.CALLS[op]
-        outs[name] = session(op, tuple(sorted(attrs.items())), fast).run(None, feed)
-        assert fastops.CALLS[op] - before == (1 if fast else 0), name
+        outs[name] = session(op, tuple(sorted(attrs.items())), bridge).run(None, feed)
+        assert fastops.CALLS[op] - before == (1 if bridge else 0), name
     outs["numba"] = list(KERNELS[op](*inputs, **attrs))
     return outs
 
@@ -310,7 +311,7 @@ def test_portable_session_runs_without_the_fast_kernels():
     inputs = spec.example_inputs(
         (1, 3, 8, 8), {"window": 17, "stride": 4}, np.random.default_rng(0)
     )
-    sess = session("CrossRegression", (("stride", 4), ("window", 17)), False)
+    sess = session("CrossRegression", (("stride", 4), ("window", 17)), "")
     assert isinstance(sess, ort.InferenceSession)
     out = sess.run(None, dict(zip(spec.input_names, inputs, strict=True)))
     assert all(np.isfinite(o).all() for o in out)

@@ -192,7 +192,7 @@ def test_array_hook_installed_and_fast():
 
     assert onnxruntime_extensions.__version__ in fastops.HOOK_VERSIONS
     so = ort.SessionOptions()
-    fastops.register_fast_kernels(so)
+    fastops.register_fast_kernels(so, "extensions")
     assert fastops.hook_installed()
     # the hook itself, on a declared op id
     from onnxruntime_extensions import _ocos
@@ -205,7 +205,7 @@ def test_array_hook_installed_and_fast():
     assert isinstance(rv[2], np.ndarray) and np.all(rv[2] == 2.0)
     # through ORT on a large output: faster than merely listing the values would be
     h, w = 720, 1280
-    sess = session("AdaptiveFusion", (), True)
+    sess = session("AdaptiveFusion", (), "extensions")
     feed = {
         "d_ta": np.ones((1, 3, h, w), np.float32),
         "d_low": np.ones((1, 3, h // 2, w // 2), np.float32),

@@ -96,7 +96,7 @@ def test_one_instance_shared_by_threads_serialises_calls():
 
 def test_a_kernel_failing_in_one_thread_is_raised_in_that_thread_only():
     fast_kernel = sys.modules["rtdenoise.runtime.kernels.fast_kernel"]
-    original = fast_kernel.FastKernel.__call__
+    original = fast_kernel.FastKernel.compute
 
     def call(self, *args, **kwargs):
         if threading.current_thread().name == "t0":
@@ -107,11 +107,11 @@ def test_a_kernel_failing_in_one_thread_is_raised_in_that_thread_only():
     want = [Denoiser("demo:wskp", threads=1).process(frames[0])]
     dens = [Denoiser("demo:wskp", threads=1) for _ in range(2)]
     got: list[np.ndarray] = []
-    fast_kernel.FastKernel.__call__ = call
+    fast_kernel.FastKernel.compute = call
     try:
         errors = run_threads([lambda: dens[0].process(frames[0]),
                               lambda: got.append(dens[1].process(frames[0]))])  # fmt: skip
     finally:
-        fast_kernel.FastKernel.__call__ = original
+        fast_kernel.FastKernel.compute = original
     assert len(errors) == 1 and "ValueError: broken in t0" in str(errors[0])
     np.testing.assert_array_equal(got[0], want[0])

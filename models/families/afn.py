@@ -12,7 +12,8 @@
    taps, softmax) is sliced from the 1/2-scale decoder feature, K_TA (softmax) and the fusion
    weight alpha (sigmoid) from the full-scale one;
 5. filtering (III-C, eq. (2)) on HDR values: d_1spp = KernelApply(D r_1spp, K_1spp) at half
-   resolution, d_TA = KernelApply(r_TA, K_TA) at full resolution;
+   resolution, d_TA = KernelApply(r_TA, K_TA) at full resolution, each as one
+   SoftmaxKernelApply op that takes the kernel's logits (the softmax happens inside it);
 6. adaptive fusion (eq. (3)): i = d_TA - alpha U D d_TA + alpha U d_1spp;
 7. refinement (eq. (4)): o = i + R(i, f), a small conv net;
 8. remodulate: output = o * (albedo + albedo_eps).
@@ -77,9 +78,8 @@ from ..accumulation import (
 )
 from ..base import DenoiserModel, parameter_count, register_family
 from ..features import depth01
-from ..functional import channel_softmax
 from ..ops.adaptive_fusion import adaptive_fusion
-from ..ops.kernel_apply import kernel_apply
+from ..ops.softmax_kernel_apply import softmax_kernel_apply
 
 
 @dataclass(frozen=True)
@@ -152,7 +152,10 @@ def _conv_block(c_in: int, c_out: int, convs: int = 2, kernel: int = 3) -> nn.Se
 
 
 class KernelPredictor(nn.Module):
-    """Lee24 eq. (1): M(r_1spp, r_TA, f) -> K_1spp (1/2 scale), K_TA and alpha (full scale)."""
+    """Lee24 eq. (1): M(r_1spp, r_TA, f) -> K_1spp (1/2 scale), K_TA and alpha (full scale).
+
+    The kernels are returned as logits: their softmax over the k*k taps is taken inside the
+    filter op (`softmax_kernel_apply`), so the normalised kernels are never stored."""
 
     def __init__(
         self,
@@ -197,11 +200,10 @@ class KernelPredictor(nn.Module):
             x = self.decoders[level](torch.cat((up, skips[level]), dim=1))
             features.append(x)
         half, full = features[-2], features[-1]
-        k_1spp = channel_softmax(self.head_1spp(half))
+        logits_1spp = self.head_1spp(half)
         head = self.head_ta(full)
-        k_ta = channel_softmax(head[:, : self.taps])
         alpha = torch.sigmoid(head[:, self.taps :])
-        return k_1spp, k_ta, alpha
+        return logits_1spp, head[:, : self.taps], alpha
 
 
 class Refinement(nn.Module):
@@ -269,11 +271,12 @@ class AFN(DenoiserModel):
             net_in.append(frame.blend)
 
         # 4. Multi-scale kernel prediction, Lee24 eq. (1).
-        k_1spp, k_ta, alpha = self.predictor(torch.cat(net_in, dim=1))
+        logits_1spp, logits_ta, alpha = self.predictor(torch.cat(net_in, dim=1))
 
-        # 5. Filtering on HDR values, Lee24 eq. (2): 1 spp at 1/2 scale, TA at full scale.
-        d_1spp = kernel_apply(F.avg_pool2d(r_1spp, 2), k_1spp)
-        d_ta = kernel_apply(r_ta, k_ta)
+        # 5. Filtering on HDR values, Lee24 eq. (2): 1 spp at 1/2 scale, TA at full scale,
+        # each kernel the softmax of its logits over the k x k taps.
+        d_1spp = softmax_kernel_apply(F.avg_pool2d(r_1spp, 2), logits_1spp)
+        d_ta = softmax_kernel_apply(r_ta, logits_ta)
 
         # 6. Adaptive fusion, Lee24 eq. (3).
         fused = adaptive_fusion(d_ta, d_1spp, alpha)

@@ -12,7 +12,7 @@ what tests and benchmarks call directly. No torch here.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,12 +52,19 @@ class FastKernel:
         self.spec.validate_call([a.shape for a in arrays], values)
         shapes = self.spec.output_shapes([a.shape for a in arrays], values)
         outs = tuple(np.empty(tuple(int(d) for d in s), np.float32) for s in shapes)
-        if all(a.size for a in (*arrays, *outs)):
-            self.driver(*arrays, *outs, **values)
+        self.compute(arrays, outs, values)
+        return outs if len(outs) > 1 else outs[0]
+
+    def compute(
+        self, inputs: Sequence[np.ndarray], outs: Sequence[np.ndarray], attrs: dict[str, int]
+    ) -> None:
+        """Fill `outs` (C-contiguous float32, the spec's shapes) from checked `inputs`: the
+        driver, or zeros when some array is empty. Both custom-op bridges call this."""
+        if all(a.size for a in (*inputs, *outs)):
+            self.driver(*inputs, *outs, **attrs)
         else:  # an empty input or output: nothing to compute
             for o in outs:
                 o.fill(0.0)
-        return outs if len(outs) > 1 else outs[0]
 
     def warmup(self) -> None:
         """Compile (or load from numba's cache) the kernel on a tiny valid input."""
