@@ -72,11 +72,25 @@ def model_contender(name: str, denoiser: Any) -> Contender:
     return Contender(name, denoiser.process, denoiser.reset, tuple(denoiser.required_buffers))
 
 
+# Pause after each contender's frame (untimed): ONNX Runtime's idle workers spin for a while
+# after a run by default (the portable path keeps that default), and that spin took the cores
+# from whichever contender ran next (measured on 2 cores: wskp's fast path at 320x240, 57-70 ms
+# right after a spinning session, 40 ms after a sleeping one; a 20 ms pause was not enough,
+# 100 ms was).
+SETTLE_S = 0.1
+
+
 def time_interleaved(
-    contenders: Sequence[Contender], frames: Sequence[Frame], repeats: int, warmup: int = 1
+    contenders: Sequence[Contender],
+    frames: Sequence[Frame],
+    repeats: int,
+    warmup: int = 1,
+    settle_s: float = SETTLE_S,
 ) -> dict[str, list[float]]:
     """Milliseconds per frame of each contender, rounds interleaved: warm-up rounds first
-    (not kept), then `repeats` rounds; frame i of the sequence goes to round i (cycling)."""
+    (not kept), then `repeats` rounds; frame i of the sequence goes to round i (cycling).
+    Sleeps `settle_s` after each frame, so that one contender's idle threads do not run
+    into the next one's time."""
     prepared = [[c.prepare(f) for f in frames] for c in contenders]
     for c in contenders:
         c.reset()
@@ -89,6 +103,7 @@ def time_interleaved(
             dt = (time.perf_counter() - t0) * 1e3
             if r >= warmup:
                 times[c.name].append(dt)
+            time.sleep(settle_s)
     return times
 
 
