@@ -25,7 +25,11 @@ def table(result: dict) -> str:
     names = list(result["quality"])
     lines = [
         f"{result['machine']}, threads {result.get('threads') or 'default'}, "
-        f"{result['repeats']} timed frames per size after a warm-up frame, interleaved; "
+        "timed frames per size "
+        + ", ".join(
+            f"{s} {r.get('repeats', result['repeats'])}" for s, r in zip(sizes, rows, strict=True)
+        )
+        + " after a warm-up frame, interleaved; "
         f"quality on {', '.join(result['sequences'])}",
         "",
         "| denoiser | " + " | ".join(f"{s} ms" for s in sizes) + " | x OIDN high / fast at "

@@ -136,7 +136,14 @@ def compare_command(
         list[str] | None,
         typer.Option(help="Frame size WIDTHxHEIGHT (repeatable). Default: 320x240, 720p, 1080p."),
     ] = None,
-    repeats: Annotated[int, typer.Option(min=1, help="Timed frames per contender and size.")] = 5,
+    repeats: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Timed frames per contender at 720p and above; smaller sizes get more, in "
+            "proportion to their pixels, up to 4x.",
+        ),
+    ] = 5,
     sequence: Annotated[
         list[Path] | None,
         typer.Option(

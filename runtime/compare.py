@@ -118,6 +118,18 @@ def summarize_times(ms: Sequence[float], pixels: int) -> dict[str, float]:
     }
 
 
+REFERENCE_PIXELS = 1280 * 720
+MORE_FRAMES_UP_TO = 4
+
+
+def repeats_for_size(repeats: int, h: int, w: int) -> int:
+    """Timed frames at H x W: `repeats` at 720p and above; smaller frames get more, in
+    proportion to their pixels, up to MORE_FRAMES_UP_TO x (small frames are short, and their
+    times are noisier: a few scheduler slices are a large part of them)."""
+    scaled = round(repeats * REFERENCE_PIXELS / max(h * w, 1))
+    return max(repeats, min(MORE_FRAMES_UP_TO * repeats, scaled))
+
+
 def speed(
     contenders: Sequence[Contender],
     sizes: Iterable[tuple[int, int]],
@@ -125,16 +137,18 @@ def speed(
     frames: int = 4,
     progress: Callable[[str], None] = lambda _msg: None,
 ) -> list[dict[str, Any]]:
-    """Per size (H, W): every contender's times and their summary."""
+    """Per size (H, W): every contender's times (`repeats_for_size` frames) and summary."""
     buffers = sorted({b for c in contenders for b in c.buffers})
     rows = []
     for h, w in sizes:
         progress(f"{w}x{h}")
         seq = synthetic_frames(buffers, frames, h, w)
-        times = time_interleaved(contenders, seq, repeats)
+        n = repeats_for_size(repeats, h, w)
+        times = time_interleaved(contenders, seq, n)
         rows.append(
             {
                 "size": [h, w],
+                "repeats": n,
                 "times_ms": times,
                 "summary": {n: summarize_times(t, h * w) for n, t in times.items()},
             }

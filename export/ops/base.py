@@ -133,3 +133,24 @@ def attr_const(name: str, attr: str) -> onnx.NodeProto:
     ref.ref_attr_name = attr
     node.attribute.append(ref)
     return node
+
+
+def softmax_axis1(x: str, out: str, prefix: str, opset: int) -> list[onnx.NodeProto]:
+    """Nodes computing `out` = softmax over axis 1 of `x`, spelled out (ReduceMax, Sub, Exp,
+    ReduceSum, Div; intermediate names start with `prefix`): ORT's Softmax(axis=1) on NCHW
+    transposes internally and was 4x slower at 720p (400 ms vs 92 ms on KernelFusion's)."""
+    mk = helper.make_node
+    names = ("axis", "top", "shifted", "e", "total")
+    axis, top, shifted, e, total = (f"{prefix}{n}" for n in names)
+    if opset >= 18:  # axes became an input of ReduceMax in opset 18
+        reduce_max = mk("ReduceMax", [x, axis], [top], keepdims=1)
+    else:
+        reduce_max = mk("ReduceMax", [x], [top], axes=[1], keepdims=1)
+    return [
+        int_const(axis, [1]),
+        reduce_max,
+        mk("Sub", [x, top], [shifted]),
+        mk("Exp", [shifted], [e]),
+        mk("ReduceSum", [e, axis], [total], keepdims=1),
+        mk("Div", [e, total], [out]),
+    ]

@@ -42,31 +42,41 @@ def _fma2_row(acc, w0, w1, src, o0, o1):
         acc[x] += w0[x] * src[x + o0] + w1[x] * src[x + o1]
 
 
+@njit(cache=True, fastmath=True)
+def apply_row(image, kernel, kn, ky, out, n, y, k, d, padded):
+    """out[n, :, y] = sum over taps t of kernel[kn, t, ky] * the tap's shifted image row
+    (padded: (C, W + 2 r d) scratch). The kernel rows are read from a 4-D array, so that every
+    row is a contiguous slice numba vectorises over (a (taps, W) slice would not be)."""
+    n_ch, h = image.shape[1], image.shape[2]
+    r = k // 2
+    p = r * d
+    for c in range(n_ch):
+        out[n, c, y, :] = 0.0
+    for i in range(k):
+        yy = min(max(y + (i - r) * d, 0), h - 1)
+        for c in range(n_ch):
+            _pad_row(image[n, c, yy], padded[c], p)
+        t0 = i * k
+        for j in range(0, k - 1, 2):
+            w0 = kernel[kn, t0 + j, ky]
+            w1 = kernel[kn, t0 + j + 1, ky]
+            for c in range(n_ch):
+                _fma2_row(out[n, c, y], w0, w1, padded[c], j * d, (j + 1) * d)
+        if k % 2 == 1:  # k is odd: the last tap of the row alone
+            weight = kernel[kn, t0 + k - 1, ky]
+            for c in range(n_ch):
+                _fma_row(out[n, c, y], weight, padded[c], (k - 1) * d)
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def _kernel_apply_nb(image, kernel, out, k, d):
     n_img, n_ch, h, w = image.shape
-    r = k // 2
-    p = r * d
+    p = (k // 2) * d
     for row in prange(n_img * h):
         n = row // h
         y = row - n * h
         padded = np.empty((n_ch, w + 2 * p), dtype=np.float32)
-        for c in range(n_ch):
-            out[n, c, y, :] = 0.0
-        for i in range(k):
-            yy = min(max(y + (i - r) * d, 0), h - 1)
-            for c in range(n_ch):
-                _pad_row(image[n, c, yy], padded[c], p)
-            t0 = i * k
-            for j in range(0, k - 1, 2):
-                w0 = kernel[n, t0 + j, y]
-                w1 = kernel[n, t0 + j + 1, y]
-                for c in range(n_ch):
-                    _fma2_row(out[n, c, y], w0, w1, padded[c], j * d, (j + 1) * d)
-            if k % 2 == 1:  # k is odd: the last tap of the row alone
-                weight = kernel[n, t0 + k - 1, y]
-                for c in range(n_ch):
-                    _fma_row(out[n, c, y], weight, padded[c], (k - 1) * d)
+        apply_row(image, kernel, n, y, out, n, y, k, d, padded)
 
 
 @fast_kernel("KernelApply")

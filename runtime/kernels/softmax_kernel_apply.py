@@ -1,9 +1,8 @@
 """SoftmaxKernelApply as a fast kernel; defined in rtdenoise.ops.softmax_kernel_apply.
 
-KernelApply's row-vectorised loop (runtime.kernels.kernel_apply), on weights normalised per
-output row: the row's k*k logits become softmax weights in a small row buffer (per pixel: max,
-exp, sum, scale; exp vectorised, see `EXP2_POLY`), read by the same two-taps-per-pass FMA loops.
-The normalised kernel never leaves the cache.
+KernelApply's row loop (`kernel_apply.apply_row`), on weights normalised per output row: the
+row's k*k logits become softmax weights in a small row buffer (per pixel: max, exp, sum, scale;
+exp vectorised, see `EXP2_POLY`). The normalised kernel never leaves the cache.
 """
 
 from __future__ import annotations
@@ -12,7 +11,7 @@ import numpy as np
 from numba import njit, prange
 
 from .fast_kernel import fast_kernel
-from .kernel_apply import _fma2_row, _fma_row, _pad_row
+from .kernel_apply import apply_row
 
 # exp(v) = 2^n * 2^f with n = floor(v log2 e), f in [0, 1): 2^f by a degree-5 polynomial
 # (relative error 1.6e-7 in float32, fitted by reweighted least squares on [0, 1]) and 2^n by
@@ -34,9 +33,9 @@ MIN_EXPONENT = np.float32(-126.0)  # 2^-126, the smallest normal float32: weight
 
 @njit(cache=True, fastmath=True)
 def _softmax_row(logits, n, y, weights, bits, top, total):
-    """weights[t, x] = softmax over t of logits[n, t, y, x] (bits: int32 scratch shaped like
-    weights). Indexed in the 4-D array: a (taps, W) slice of it would be non-contiguous, which
-    keeps numba from vectorising the loops (2.5x slower)."""
+    """weights[0, t, 0, x] = softmax over t of logits[n, t, y, x] (bits: (taps, W) int32
+    scratch). Both 4-D arrays are indexed in full: a (taps, W) slice of one is typed
+    non-contiguous, which keeps numba from vectorising the loops (2.5x slower)."""
     taps, w = logits.shape[1], logits.shape[3]
     c0, c1, c2, c3, c4, c5 = EXP2_POLY
     for x in range(w):
@@ -49,51 +48,36 @@ def _softmax_row(logits, n, y, weights, bits, top, total):
             v = max((logits[n, t, y, x] - top[x]) * LOG2E, MIN_EXPONENT)
             whole = np.floor(v)
             f = v - whole
-            weights[t, x] = c0 + f * (c1 + f * (c2 + f * (c3 + f * (c4 + f * c5))))
+            weights[0, t, 0, x] = c0 + f * (c1 + f * (c2 + f * (c3 + f * (c4 + f * c5))))
             bits[t, x] = (np.int32(whole) + np.int32(127)) << np.int32(23)
     scale = bits.view(np.float32)
     total[:] = 0.0
     for t in range(taps):
         for x in range(w):
-            e = weights[t, x] * scale[t, x]
-            weights[t, x] = e
+            e = weights[0, t, 0, x] * scale[t, x]
+            weights[0, t, 0, x] = e
             total[x] += e
     for x in range(w):
         total[x] = np.float32(1.0) / total[x]
     for t in range(taps):
         for x in range(w):
-            weights[t, x] *= total[x]
+            weights[0, t, 0, x] *= total[x]
 
 
 @njit(parallel=True, cache=True, fastmath=True)
 def _softmax_kernel_apply_nb(image, logits, out, k, d):
     n_img, n_ch, h, w = image.shape
-    r = k // 2
-    p = r * d
+    p = (k // 2) * d
     for row in prange(n_img * h):
         n = row // h
         y = row - n * h
         padded = np.empty((n_ch, w + 2 * p), dtype=np.float32)
-        weights = np.empty((k * k, w), dtype=np.float32)
+        weights = np.empty((1, k * k, 1, w), dtype=np.float32)  # 4-D, as apply_row reads it
         bits = np.empty((k * k, w), dtype=np.int32)
         top = np.empty(w, dtype=np.float32)
         total = np.empty(w, dtype=np.float32)
         _softmax_row(logits, n, y, weights, bits, top, total)
-        for c in range(n_ch):
-            out[n, c, y, :] = 0.0
-        for i in range(k):
-            yy = min(max(y + (i - r) * d, 0), h - 1)
-            for c in range(n_ch):
-                _pad_row(image[n, c, yy], padded[c], p)
-            t0 = i * k
-            for j in range(0, k - 1, 2):
-                w0 = weights[t0 + j]
-                w1 = weights[t0 + j + 1]
-                for c in range(n_ch):
-                    _fma2_row(out[n, c, y], w0, w1, padded[c], j * d, (j + 1) * d)
-            if k % 2 == 1:  # k is odd: the last tap of the row alone
-                for c in range(n_ch):
-                    _fma_row(out[n, c, y], weights[t0 + k - 1], padded[c], (k - 1) * d)
+        apply_row(image, weights, 0, 0, out, n, y, k, d, padded)
 
 
 @fast_kernel("SoftmaxKernelApply")
