@@ -184,8 +184,9 @@ def compare_command(
     """Compare denoisers on the same frames: exported models on ONNX Runtime (fast kernels)
     and Intel Open Image Denoise (RT filter, HDR, albedo + normal).
 
-    Speed: interleaved rounds (A B C A B C ...) after a warm-up round, median and min-max of
-    REPEATS frames per size, and ns per pixel; models carry their state, OIDN is per frame.
+    Speed: interleaved rounds (A B C A B C ..., every size in every round) after a warm-up
+    round, median and min-max of REPEATS frames per size (more for small sizes), and ns per
+    pixel; models carry their state (one per size), OIDN is per frame.
     Quality: PSNR (tau-mapped, pooled), SSIM and TRMAE on sequences with references.
     """
     import platform
@@ -211,8 +212,10 @@ def compare_command(
             source = _onnx_source(spec)
             for fast in (True, False) if portable else (True,):
                 label = spec + ("" if fast else " (portable)")
-                den = Denoiser(source, fast_kernels=fast, threads=threads)
-                contenders.append(compare.model_contender(label, den))
+                def remake(source=source, fast=fast) -> Denoiser:
+                    return Denoiser(source, fast_kernels=fast, threads=threads)
+
+                contenders.append(compare.model_contender(label, remake(), remake))
             if eager:
                 contenders.append(_eager(spec, device))
         if device == "cpu":

@@ -45,7 +45,10 @@ def eager_contender(name: str, checkpoint: str | os.PathLike, device: str = "cpu
         _sync(dev)
         return out
 
-    return Contender(name, denoise, loop.reset, tuple(model.inputs), prepare)
+    def fresh() -> Contender:  # the same checkpoint again, with a state of its own
+        return eager_contender(name, checkpoint, device)
+
+    return Contender(name, denoise, loop.reset, tuple(model.inputs), prepare, fresh)
 
 
 def oidn_torch_contender(quality: str = "high", device: str = "cuda") -> Contender:

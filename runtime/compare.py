@@ -1,7 +1,8 @@
 """Denoisers side by side: exported models (ONNX Runtime) and Intel Open Image Denoise.
 
-Speed: every contender denoises the same synthetic frames at each size, interleaved (A B C A B
-C ...) after a warm-up round, so that a busy machine slows all of them alike; the report keeps
+Speed: every contender denoises the same synthetic frames at every size, all interleaved in
+the same rounds (A B C A B C ...) after a warm-up round, so that a busy machine slows all of
+them and all sizes alike; the report keeps
 every time, the median and the spread (min, max), and the time per pixel. Models run with
 their state carried from frame to frame, as in production; OIDN is single-frame.
 Quality: every contender denoises whole sequences with references (tau-PSNR pooled over the
@@ -39,6 +40,9 @@ class Contender:
     reset: Callable[[], None]
     buffers: tuple[str, ...]
     prepare: Callable[[Frame], Any] = field(default=lambda frame: frame)  # untimed conversion
+    # A new contender of the same denoiser with its own state (one per frame size, so that
+    # sizes can be interleaved); None: stateless, this one serves every size.
+    fresh: Callable[[], Contender] | None = None
 
 
 def _hwc(a: np.ndarray) -> np.ndarray:
@@ -67,9 +71,14 @@ def oidn_contender(quality: str = "high") -> Contender:
     return Contender(f"OIDN {quality}", denoise, lambda: None, OIDN_BUFFERS, prepare)
 
 
-def model_contender(name: str, denoiser: Any) -> Contender:
-    """A `rtdenoise.runtime.Denoiser` (or any object with process/reset/required_buffers)."""
-    return Contender(name, denoiser.process, denoiser.reset, tuple(denoiser.required_buffers))
+def model_contender(
+    name: str, denoiser: Any, remake: Callable[[], Any] | None = None
+) -> Contender:
+    """A `rtdenoise.runtime.Denoiser` (or any object with process/reset/required_buffers);
+    `remake()` builds another one like it (for `Contender.fresh`)."""
+    fresh = None if remake is None else (lambda: model_contender(name, remake(), remake))
+    buffers = tuple(denoiser.required_buffers)
+    return Contender(name, denoiser.process, denoiser.reset, buffers, fresh=fresh)
 
 
 # Pause after each contender's frame (untimed): ONNX Runtime's idle workers spin for a while
@@ -80,6 +89,42 @@ def model_contender(name: str, denoiser: Any) -> Contender:
 SETTLE_S = 0.1
 
 
+@dataclass
+class Slot:
+    """One contender on one frame sequence, `per_round` frames in each round."""
+
+    key: tuple
+    contender: Contender
+    frames: Sequence[Frame]
+    per_round: int = 1
+
+
+def time_rounds(
+    slots: Sequence[Slot], rounds: int, warmup: int = 1, settle_s: float = SETTLE_S
+) -> dict[tuple, list[float]]:
+    """Milliseconds per frame of each slot, in interleaved rounds (every slot's `per_round`
+    frames in turn, A B C A B C ...): `warmup` rounds first (not kept), then `rounds`. Each
+    slot walks its sequence cyclically, its state carried. Sleeps `settle_s` after each frame,
+    so that one contender's idle threads do not run into the next one's time."""
+    prepared = [[s.contender.prepare(f) for f in s.frames] for s in slots]
+    for s in slots:
+        s.contender.reset()
+    times: dict[tuple, list[float]] = {s.key: [] for s in slots}
+    walked = [0] * len(slots)
+    for r in range(warmup + rounds):
+        for i, (slot, inputs) in enumerate(zip(slots, prepared, strict=True)):
+            for _ in range(slot.per_round if r >= warmup else 1):
+                frame = inputs[walked[i] % len(inputs)]
+                walked[i] += 1
+                t0 = time.perf_counter()
+                slot.contender.denoise(frame)
+                dt = (time.perf_counter() - t0) * 1e3
+                if r >= warmup:
+                    times[slot.key].append(dt)
+                time.sleep(settle_s)
+    return times
+
+
 def time_interleaved(
     contenders: Sequence[Contender],
     frames: Sequence[Frame],
@@ -87,24 +132,10 @@ def time_interleaved(
     warmup: int = 1,
     settle_s: float = SETTLE_S,
 ) -> dict[str, list[float]]:
-    """Milliseconds per frame of each contender, rounds interleaved: warm-up rounds first
-    (not kept), then `repeats` rounds; frame i of the sequence goes to round i (cycling).
-    Sleeps `settle_s` after each frame, so that one contender's idle threads do not run
-    into the next one's time."""
-    prepared = [[c.prepare(f) for f in frames] for c in contenders]
-    for c in contenders:
-        c.reset()
-    times: dict[str, list[float]] = {c.name: [] for c in contenders}
-    for r in range(warmup + repeats):
-        for c, inputs in zip(contenders, prepared, strict=True):
-            frame = inputs[r % len(inputs)]
-            t0 = time.perf_counter()
-            c.denoise(frame)
-            dt = (time.perf_counter() - t0) * 1e3
-            if r >= warmup:
-                times[c.name].append(dt)
-            time.sleep(settle_s)
-    return times
+    """`time_rounds` of `contenders` on one sequence: {name: ms per frame}."""
+    slots = [Slot((c.name,), c, frames) for c in contenders]
+    times = time_rounds(slots, repeats, warmup, settle_s)
+    return {key[0]: t for key, t in times.items()}
 
 
 def summarize_times(ms: Sequence[float], pixels: int) -> dict[str, float]:
@@ -122,12 +153,11 @@ REFERENCE_PIXELS = 1280 * 720
 MORE_FRAMES_UP_TO = 4
 
 
-def repeats_for_size(repeats: int, h: int, w: int) -> int:
-    """Timed frames at H x W: `repeats` at 720p and above; smaller frames get more, in
-    proportion to their pixels, up to MORE_FRAMES_UP_TO x (small frames are short, and their
+def frames_per_round(h: int, w: int) -> int:
+    """Timed frames per round at H x W: 1 at 720p and above; smaller frames get more, in
+    proportion to their pixels, up to MORE_FRAMES_UP_TO (small frames are short, and their
     times are noisier: a few scheduler slices are a large part of them)."""
-    scaled = round(repeats * REFERENCE_PIXELS / max(h * w, 1))
-    return max(repeats, min(MORE_FRAMES_UP_TO * repeats, scaled))
+    return min(MORE_FRAMES_UP_TO, max(1, round(REFERENCE_PIXELS / max(h * w, 1))))
 
 
 def speed(
@@ -137,20 +167,29 @@ def speed(
     frames: int = 4,
     progress: Callable[[str], None] = lambda _msg: None,
 ) -> list[dict[str, Any]]:
-    """Per size (H, W): every contender's times (`repeats_for_size` frames) and summary."""
+    """Per size (H, W): every contender's times and their summary. All sizes are timed in the
+    same interleaved rounds (`repeats` of them, `frames_per_round` frames per size), each
+    contender at each size with a state of its own (`Contender.fresh`): a machine whose speed
+    drifts during the run slows every size alike, so times per pixel compare across sizes."""
+    sizes = list(sizes)
     buffers = sorted({b for c in contenders for b in c.buffers})
+    slots = []
+    for k, (h, w) in enumerate(sizes):
+        seq = synthetic_frames(buffers, frames, h, w)
+        for c in contenders:
+            own = c if k == 0 or c.fresh is None else c.fresh()
+            slots.append(Slot((h, w, c.name), own, seq, frames_per_round(h, w)))
+    progress(", ".join(f"{w}x{h}" for h, w in sizes))
+    times = time_rounds(slots, repeats)
     rows = []
     for h, w in sizes:
-        progress(f"{w}x{h}")
-        seq = synthetic_frames(buffers, frames, h, w)
-        n = repeats_for_size(repeats, h, w)
-        times = time_interleaved(contenders, seq, n)
+        size_times = {c.name: times[(h, w, c.name)] for c in contenders}
         rows.append(
             {
                 "size": [h, w],
-                "repeats": n,
-                "times_ms": times,
-                "summary": {n: summarize_times(t, h * w) for n, t in times.items()},
+                "repeats": repeats * frames_per_round(h, w),
+                "times_ms": size_times,
+                "summary": {n: summarize_times(t, h * w) for n, t in size_times.items()},
             }
         )
     return rows
