@@ -72,7 +72,7 @@ class _Bridge:
         self.lib.rtd_declare_op.restype = c_int
         self.lib.rtd_op_count.restype = c_int
         self.kernels: list[FastKernel] = []
-        if self.lib.rtd_op_count() == 0:  # a library loaded before (same process) keeps its ops
+        if self.lib.rtd_op_count() == 0:  # the library keeps its ops for the process
             for kernel in KERNELS.values():
                 spec = kernel.spec
                 op_id = self.lib.rtd_declare_op(
@@ -82,8 +82,10 @@ class _Bridge:
                 if op_id != len(self.kernels):
                     raise BridgeError(f"the native bridge cannot declare op {spec.name}")
                 self.kernels.append(kernel)
-        else:
+        elif self.lib.rtd_op_count() == len(KERNELS):  # declared by an earlier load
             self.kernels = list(KERNELS.values())
+        else:  # an earlier load failed part-way: some op would silently run its ONNX body
+            raise BridgeError("the native bridge holds only some of the ops")
         # Kept referenced for the life of the process: the library calls them.
         self.callbacks = (_SHAPE(self._shapes), _COMPUTE(self._compute), _FAIL(self._fail))
         self.lib.rtd_set_callbacks(*self.callbacks)
