@@ -5,7 +5,8 @@ Each variant is one `Denoiser` built from keyword arguments, e.g. `fast:fast_ker
 carried, `runtime.synthetic`) in interleaved rounds after one warm-up round, size by size.
 Reports the median ms per frame (min-max) and each variant's median over the first
 variant's. Like the CLIs, it lets idle OpenMP workers sleep (OMP_WAIT_POLICY=PASSIVE unless
-set) and tunes the allocator.
+set) and tunes the allocator; like `denoise-bench compare`, it pauses 100 ms after each frame
+(`compare.SETTLE_S`: a spinning ORT session otherwise slows the variant timed after it).
 
     python benchmarks/runtime_paths.py --model demo:wskp --size 64x64 --size 1280x720 \
         --variant fast:fast_kernels=1 --variant portable:fast_kernels=0
