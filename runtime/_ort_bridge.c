@@ -112,6 +112,7 @@ typedef struct Op {
     void (*ReleaseMayInplace)(int *input_index, int *output_index);
     size_t (*GetAliasMap)(int **input_index, int **output_index);  /* 20 */
     void (*ReleaseAliasMap)(int *input_index, int *output_index);
+    void *reserved[16]; /* NULL: room for fields a later ORT adds (it checks them for NULL) */
     int id, n_in, n_out, n_attrs;
     char name[NAME_LEN];
     char attrs[MAX_ATTRS][NAME_LEN];
