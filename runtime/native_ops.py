@@ -154,13 +154,18 @@ def bridge() -> _Bridge:
     return _bridge
 
 
-def available() -> bool:
-    """True if the native bridge was built and loads."""
+def unavailable_reason() -> str | None:
+    """Why the native bridge cannot be used (None: it loads)."""
     try:
         bridge()
-        return True
-    except (BridgeError, OSError):
-        return False
+        return None
+    except (BridgeError, OSError) as exc:
+        return str(exc)
+
+
+def available() -> bool:
+    """True if the native bridge was built and loads."""
+    return unavailable_reason() is None
 
 
 def register(options: ort.SessionOptions) -> None:

@@ -100,3 +100,20 @@ def test_a_node_without_a_declared_attribute_is_a_python_error():
     with pytest.raises(fastops.KernelError, match="attribute is missing"):
         with fastops.raise_kernel_errors():
             sess.run(None, feeds)
+
+
+def test_without_the_built_bridge_the_kernels_fall_back_with_one_warning(monkeypatch):
+    monkeypatch.setattr(native_ops, "_bridge", None)
+    monkeypatch.setattr(native_ops, "library_path", lambda: None)
+    monkeypatch.setattr(fastops, "_fallback_warned", False)
+    with pytest.warns(RuntimeWarning, match="native custom-op bridge unavailable.*was not built"):
+        den = Denoiser("demo:wskp")
+    assert den.bridge == "extensions" and den.fast_kernels
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # said once per process
+        assert Denoiser("demo:wskp").bridge == "extensions"
+    with pytest.raises(native_ops.BridgeError, match="was not built"):
+        Denoiser("demo:wskp", fast_kernels="native")
+
