@@ -151,7 +151,10 @@ def _register_fast_kernels(options: ort.SessionOptions, bridge: str | None) -> t
             )
             return None, ""
         raise
-    return fastops, fastops.register_fast_kernels(options, bridge)
+    try:
+        return fastops, fastops.register_fast_kernels(options, bridge)
+    except ValueError as exc:  # an unknown bridge name
+        raise InputError(f"fast_kernels={bridge!r}: {exc}") from None
 
 
 def _count_nonfinite(a: np.ndarray) -> int:
@@ -299,11 +302,6 @@ class Denoiser:
         self.bridge = ""  # how ONNX Runtime reaches the fast kernels: "native", "extensions"
         if fast_kernels:
             wanted_bridge = fast_kernels if isinstance(fast_kernels, str) else None
-            if wanted_bridge is not None and wanted_bridge not in ("native", "extensions"):
-                raise InputError(
-                    f"fast_kernels={fast_kernels!r}: expected True, False, 'native' or "
-                    "'extensions'"
-                )
             self._fastops, self.bridge = _register_fast_kernels(options, wanted_bridge)
         else:
             self._fastops = None

@@ -32,7 +32,7 @@ from rtdenoise.runtime.kernels.affinity_filter import (
     apply_mask,
     dist1,
     dist4,
-    start_with_centre,
+    spatial_sums,
 )
 
 from .export_mode import use_custom_op
@@ -182,28 +182,8 @@ def _forward_nb(image, features, bandwidth, centre, previous, prev_features, t_b
     for row in prange(n_img * h):
         u = np.int64(row)
         n, y = u // h, u % h
-        num = np.empty((n_ch, w), dtype=np.float32)
-        den = np.empty(w, dtype=np.float32)
-        dist = np.empty(w, dtype=np.float32)
-        weight = np.empty(w, dtype=np.float32)
-        start_with_centre(num, den, image[n], centre[n, 0], y, 0, w)
-        affinity_taps(
-            num,
-            den,
-            features[n],
-            bandwidth[n, 0, y],
-            image[n],
-            features[n],
-            no_mask,
-            y,
-            0,
-            w,
-            k,
-            d,
-            True,
-            False,
-            dist,
-            weight,
+        num, den, dist, weight = spatial_sums(
+            image, features, bandwidth, centre, no_mask, n, y, 0, w, k, d
         )
         if temporal:
             affinity_taps(

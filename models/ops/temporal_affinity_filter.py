@@ -57,16 +57,8 @@ def temporal_affinity_filter(
     While autograd records on CPU it runs the numba forward / backward (affinity_autograd)."""
     from .affinity_autograd import TemporalAffinityFilterFunction, use_training_kernels
 
-    tensors = (
-        image,
-        features,
-        bandwidth,
-        centre,
-        previous,
-        previous_features,
-        temporal_bandwidth,
-        valid,
-    )
+    tensors = (image, features, bandwidth, centre, previous, previous_features)
+    tensors += (temporal_bandwidth, valid)
     if use_training_kernels(*tensors):
         sizes = (kernel_size, temporal_size)
         shapes = [tuple(t.shape) for t in (*tensors, *sizes)]
@@ -75,15 +67,5 @@ def temporal_affinity_filter(
         k, kt = (kernel_size_value(s.detach().cpu().numpy(), op) for s in sizes)
         return TemporalAffinityFilterFunction.apply(*tensors, k, kt, dilation)
     return temporal_affinity_filter_reference(
-        image,
-        features,
-        bandwidth,
-        centre,
-        previous,
-        previous_features,
-        temporal_bandwidth,
-        valid,
-        kernel_size,
-        temporal_size,
-        dilation=dilation,
+        *tensors, kernel_size, temporal_size, dilation=dilation
     )

@@ -16,7 +16,7 @@ makes numba check every index for wrap-around, which stops the vectorisation (me
 slower), and slicing the rows instead costs reference-count atomics on every slice, which
 the two threads contend for (2.3x slower on 64-pixel rows). The centre tap starts the sums
 with c_p (eq. (4)).
-`affinity_taps`, `start_with_centre` and `normalise` are shared with TemporalAffinityFilter.
+`spatial_sums`, `affinity_taps` and `normalise` are shared with TemporalAffinityFilter.
 """
 
 from __future__ import annotations
@@ -182,9 +182,27 @@ def normalise(out, num, den, y, xa, xb):
         _scaled(out[c, y, xa:xb], num[c, xa:xb], den[xa:xb])
 
 
+@njit(cache=True, fastmath=True)
+def spatial_sums(image, features, bandwidth, centre, mask, n, y, xa, xb, k, d):
+    """The unnormalised sums of one tile of row y (Isik21 eq. (4)): the centre weight, then
+    the dilated taps -> (num (C, W), den (W), and the dist / weight scratch rows for more
+    taps). `mask` is not read (any (h, w) float32 array)."""
+    n_ch, w = image.shape[1], image.shape[3]
+    num = np.empty((n_ch, w), dtype=np.float32)
+    den = np.empty(w, dtype=np.float32)
+    dist = np.empty(w, dtype=np.float32)
+    weight = np.empty(w, dtype=np.float32)
+    start_with_centre(num, den, image[n], centre[n, 0], y, xa, xb)
+    affinity_taps(
+        num, den, features[n], bandwidth[n, 0, y], image[n], features[n], mask,
+        y, xa, xb, k, d, True, False, dist, weight,
+    )  # fmt: skip
+    return num, den, dist, weight
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def _affinity_filter_nb(image, features, bandwidth, centre, out, k, d):
-    n_img, n_ch, h, w = image.shape
+    n_img, h, w = image.shape[0], image.shape[2], image.shape[3]
     tiles = -(-w // TILE)
     no_mask = np.zeros((1, 1), dtype=np.float32)
     for unit in prange(n_img * h * tiles):
@@ -193,16 +211,8 @@ def _affinity_filter_nb(image, features, bandwidth, centre, out, k, d):
         y = (u // tiles) % h
         tile = u % tiles
         xa, xb = tile * TILE, min(w, (tile + 1) * TILE)
-        num = np.empty((n_ch, w), dtype=np.float32)
-        den = np.empty(w, dtype=np.float32)
-        dist = np.empty(w, dtype=np.float32)
-        weight = np.empty(w, dtype=np.float32)
-        start_with_centre(num, den, image[n], centre[n, 0], y, xa, xb)
-        affinity_taps(
-            num, den, features[n], bandwidth[n, 0, y], image[n], features[n], no_mask,
-            y, xa, xb, k, d, True, False, dist, weight,
-        )  # fmt: skip
-        normalise(out[n], num, den, y, xa, xb)
+        sums = spatial_sums(image, features, bandwidth, centre, no_mask, n, y, xa, xb, k, d)
+        normalise(out[n], sums[0], sums[1], y, xa, xb)
 
 
 @fast_kernel("AffinityFilter")

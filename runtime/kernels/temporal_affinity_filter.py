@@ -14,7 +14,7 @@ from numba import njit, prange
 
 from rtdenoise.ops.affinity_filter import kernel_size_value
 
-from .affinity_filter import TILE, affinity_taps, normalise, start_with_centre
+from .affinity_filter import TILE, affinity_taps, normalise, spatial_sums
 from .fast_kernel import fast_kernel
 
 
@@ -23,7 +23,7 @@ def _temporal_affinity_filter_nb(
     image, features, bandwidth, centre, previous, previous_features, temporal_bandwidth,
     valid, out, k, kt, d,
 ):  # fmt: skip
-    n_img, n_ch, h, w = image.shape
+    n_img, h, w = image.shape[0], image.shape[2], image.shape[3]
     tiles = -(-w // TILE)
     for unit in prange(n_img * h * tiles):
         u = np.int64(unit)  # the parfor index is unsigned: int64 keeps the arithmetic integer
@@ -31,28 +31,9 @@ def _temporal_affinity_filter_nb(
         y = (u // tiles) % h
         tile = u % tiles
         xa, xb = tile * TILE, min(w, (tile + 1) * TILE)
-        num = np.empty((n_ch, w), dtype=np.float32)
-        den = np.empty(w, dtype=np.float32)
-        dist = np.empty(w, dtype=np.float32)
-        weight = np.empty(w, dtype=np.float32)
-        start_with_centre(num, den, image[n], centre[n, 0], y, xa, xb)
-        affinity_taps(  # Isik21 eq. (4), the K-th spatial kernel
-            num,
-            den,
-            features[n],
-            bandwidth[n, 0, y],
-            image[n],
-            features[n],
-            valid[n, 0],
-            y,
-            xa,
-            xb,
-            k,
-            d,
-            True,
-            False,
-            dist,
-            weight,
+        # Isik21 eq. (4), the K-th spatial kernel (the mask is not read there)
+        num, den, dist, weight = spatial_sums(
+            image, features, bandwidth, centre, valid[n, 0], n, y, xa, xb, k, d
         )
         affinity_taps(  # eq. (7), the temporal kernel: no centre weight, masked
             num, den, features[n], temporal_bandwidth[n, 0, y], previous[n],
