@@ -1,27 +1,28 @@
 """Reproject as a fast kernel; spec: rtdenoise.ops.reproject.
 
-One output row per parallel iteration: the row's source positions, taps and bilinear weights
-are computed once (clamped to the image, so every tap is in bounds, whatever the motion), then
-every channel gathers its four taps per pixel. The float32 arithmetic is the torch form's,
-step by step and without fastmath (numba compiles the callees with the caller's flags), so
-the forms agree to the bit rather than to ~1e-7: the temporal state of some models (the
-bilateral grid's depth axis) amplifies such differences over frames.
+One output row per parallel iteration: the row's source positions, the flat offsets of their
+four taps and the bilinear weights are computed once (clamped to the image, so every tap is in
+bounds, whatever the motion), then every channel gathers its four taps per pixel. The float32
+arithmetic is the torch form's, step by step and without fastmath (numba compiles the callees
+with the caller's flags), so the forms agree to the bit rather than to ~1e-7: the temporal
+state of some models (the bilateral grid's depth axis) amplifies such differences over frames.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, uintp
 
 from .fast_kernel import fast_kernel
 
 
 @njit(cache=True)
-def _taps(motion_x, motion_y, y, h, x0, x1, y0, y1, wx, wy):
-    """Per pixel of the row: the clamped source position -> taps (x0, x1, y0, y1) and weights
-    (wx, wy), in float32 as the torch form computes them."""
+def _taps(motion_x, motion_y, y, h, taps, weights):
+    """Per pixel x of the row: the clamped source position -> the flat offsets of its four
+    bilinear taps, taps[k, x] (k: nw, ne, sw, se, into a plane of h * w), and their weights
+    weights[k, x], in float32 as the torch form computes them."""
     w = motion_x.shape[0]
-    zero = np.float32(0.0)
+    zero, one = np.float32(0.0), np.float32(1.0)
     fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
     for x in range(w):
         px = np.float32(x) + motion_x[x]
@@ -37,44 +38,55 @@ def _taps(motion_x, motion_y, y, h, x0, x1, y0, y1, wx, wy):
             py = fh1
         cx = int(px)  # floor: px >= 0
         cy = int(py)
-        x0[x] = cx
-        y0[x] = cy
-        x1[x] = min(cx + 1, w - 1)
-        y1[x] = min(cy + 1, h - 1)
-        wx[x] = px - np.float32(cx)
-        wy[x] = py - np.float32(cy)
+        x1 = min(cx + 1, w - 1)
+        y1 = min(cy + 1, h - 1)
+        wx = px - np.float32(cx)
+        wy = py - np.float32(cy)
+        ex, ey = one - wx, one - wy
+        taps[0, x], taps[1, x] = cy * w + cx, cy * w + x1
+        taps[2, x], taps[3, x] = y1 * w + cx, y1 * w + x1
+        weights[0, x], weights[1, x] = ey * ex, ey * wx
+        weights[2, x], weights[3, x] = wy * ex, wy * wx
 
 
 @njit(cache=True)
-def _gather_row(src, out, x0, x1, y0, y1, wx, wy):
-    """out[x] = bilinear sample of the plane src, the four corner terms in the torch form's
-    order: nw (1 - wy)(1 - wx) + ne (1 - wy) wx + sw wy (1 - wx) + se wy wx."""
-    one = np.float32(1.0)
+def _gather_row(plane, out, nw, ne, sw, se, w_nw, w_ne, w_sw, w_se):
+    """out[x] = bilinear sample of the flat plane, the four corner terms in the torch form's
+    order: nw (1 - wy)(1 - wx) + ne (1 - wy) wx + sw wy (1 - wx) + se wy wx. Unsigned
+    indices: numba's wrap-around check on signed ones keeps the loop scalar."""
     for x in range(out.shape[0]):
-        ex, ey = one - wx[x], one - wy[x]
-        out[x] = (
-            src[y0[x], x0[x]] * (ey * ex)
-            + src[y0[x], x1[x]] * (ey * wx[x])
-            + src[y1[x], x0[x]] * (wy[x] * ex)
-            + src[y1[x], x1[x]] * (wy[x] * wx[x])
+        u = uintp(x)
+        out[u] = (
+            plane[uintp(nw[u])] * w_nw[u]
+            + plane[uintp(ne[u])] * w_ne[u]
+            + plane[uintp(sw[u])] * w_sw[u]
+            + plane[uintp(se[u])] * w_se[u]
         )
 
 
 @njit(parallel=True, cache=True)  # no fastmath: numba compiles the callees with these flags
 def _reproject_nb(previous, motion, out):
     n_img, n_ch, h, w = previous.shape
+    planes = previous.reshape(n_img, n_ch, h * w)
     for row in prange(n_img * h):
         n = row // h
         y = row - n * h
-        x0 = np.empty(w, np.int64)
-        x1 = np.empty(w, np.int64)
-        y0 = np.empty(w, np.int64)
-        y1 = np.empty(w, np.int64)
-        wx = np.empty(w, np.float32)
-        wy = np.empty(w, np.float32)
-        _taps(motion[n, 0, y], motion[n, 1, y], y, h, x0, x1, y0, y1, wx, wy)
+        taps = np.empty((4, w), np.int64)
+        weights = np.empty((4, w), np.float32)
+        _taps(motion[n, 0, y], motion[n, 1, y], y, h, taps, weights)
         for c in range(n_ch):
-            _gather_row(previous[n, c], out[n, c, y], x0, x1, y0, y1, wx, wy)
+            _gather_row(
+                planes[n, c],
+                out[n, c, y],
+                taps[0],
+                taps[1],
+                taps[2],
+                taps[3],
+                weights[0],
+                weights[1],
+                weights[2],
+                weights[3],
+            )
 
 
 @fast_kernel("Reproject")
