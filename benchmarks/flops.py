@@ -3,7 +3,11 @@
 Counts every `Conv` node of the ONNX graph (the network: predictor, refinement, ImportanceNet,
 GuideNet ...; the filter stages are custom ops and not counted):
 MAC = output elements x (input channels / group) x kernel height x kernel width, and
-FLOP = 2 x MAC (one multiply and one add each; biases and activations are not counted). Shapes
+FLOP = 2 x MAC (one multiply and one add each; biases and activations are not counted).
+Channels whose weights are all zero are not the model's arithmetic: the export pads conv
+widths with them for ONNX Runtime's blocked layout (export/conv_widths.py). `macs` leaves them
+out (the model's cost, e.g. against a paper's budget); `executed_macs` counts them (what the
+CPU multiplies). Shapes
 come from ONNX shape inference at the given size; the outputs of the `rtdenoise` custom ops
 (whose function bodies loop, which shape inference cannot follow) from their `OpSpec`
 shape rules.
@@ -23,20 +27,34 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import onnx
-from onnx import shape_inference
+from onnx import numpy_helper, shape_inference
 
 from rtdenoise.ops import DOMAIN, get_spec
 
 
 @dataclass(frozen=True)
 class ConvCost:
-    """One Conv node: its output name, weight shape, output shape and multiply-adds."""
+    """One Conv node: its output name, weight shape, output shape and multiply-adds (the
+    model's, without all-zero channels, and as executed)."""
 
     name: str
     weight: tuple[int, ...]
     output: tuple[int, ...]
     macs: int
+    executed_macs: int
+
+
+def _live_fraction(weight: np.ndarray | None, group: int) -> float:
+    """The share of a conv's multiply-adds that involve no all-zero output or input channel."""
+    if weight is None or group != 1:
+        return 1.0
+    c_out, c_in = weight.shape[:2]
+    flat = weight.reshape(c_out, c_in, -1)
+    live_out = int(np.any(flat != 0, axis=(1, 2)).sum())
+    live_in = int(np.any(flat != 0, axis=(0, 2)).sum())
+    return (live_out * live_in) / (c_out * c_in)
 
 
 def _shape(value: onnx.ValueInfoProto) -> tuple[int, ...] | None:
@@ -98,6 +116,7 @@ def conv_costs(model: onnx.ModelProto | str | Path, height: int, width: int) -> 
     if not isinstance(model, onnx.ModelProto):
         model = onnx.load(str(model))
     shapes = infer_shapes(model, height, width)
+    weights = {t.name: t for t in model.graph.initializer}
     costs = []
     for node in model.graph.node:
         if node.op_type != "Conv" or node.domain not in ("", "ai.onnx"):
@@ -111,7 +130,11 @@ def conv_costs(model: onnx.ModelProto | str | Path, height: int, width: int) -> 
         per_output = 1
         for d in weight[1:]:  # (C_out, C_in / group, kh, kw): one output needs C_in/g*kh*kw
             per_output *= d
-        costs.append(ConvCost(node.output[0], weight, out, n_out * per_output))
+        group = next((int(a.i) for a in node.attribute if a.name == "group"), 1)
+        init = weights.get(node.input[1])
+        live = _live_fraction(None if init is None else numpy_helper.to_array(init), group)
+        executed = n_out * per_output
+        costs.append(ConvCost(node.output[0], weight, out, round(executed * live), executed))
     return costs
 
 
@@ -140,12 +163,14 @@ def main(argv: list[str] | None = None) -> None:
     for name in args.models:
         costs = conv_costs(_resolve(name), height, width)
         macs = sum(c.macs for c in costs)
+        executed = sum(c.executed_macs for c in costs)
         r = {
             "model": name,
             "size": f"{width}x{height}",
             "convs": len(costs),
             "mac_per_pixel": macs / (width * height),
             "gflop": 2 * macs / 1e9,
+            "executed_gflop": 2 * executed / 1e9,
             "nodes": [c.__dict__ for c in costs] if args.nodes else None,
         }
         results.append(r)
@@ -153,12 +178,19 @@ def main(argv: list[str] | None = None) -> None:
             continue
         print(
             f"{r['model']}: {r['convs']} Conv nodes, {r['mac_per_pixel'] / 1e3:.2f} k MAC/pixel, "
-            f"{r['gflop']:.2f} GFLOP per {r['size']} frame (FLOP = 2 x multiply-adds)",
+            f"{r['gflop']:.2f} GFLOP per {r['size']} frame (FLOP = 2 x multiply-adds)"
+            + (
+                f"; {r['executed_gflop']:.2f} executed with the zero channels padded for NCHWc"
+                if executed != macs
+                else ""
+            ),
             flush=True,
         )
         for c in r["nodes"] or []:
+            padded = c["executed_macs"] != c["macs"]
             print(
                 f"  {c['name']:<14} weight {c['weight']} -> {c['output']}: {c['macs'] / 1e6:.1f} M"
+                + (f" ({c['executed_macs'] / 1e6:.1f} M executed)" if padded else "")
             )
     if args.json:
         json.dump(results, sys.stdout, indent=1)

@@ -1,17 +1,23 @@
-"""Zero-pad hidden conv widths to a multiple of 8 at export, so ONNX Runtime's CPU convs take
-their blocked (NCHWc) layout.
+"""Zero-pad conv channel counts to a multiple of 8 at export, so that ONNX Runtime's CPU convs
+take their blocked (NCHWc) layout, and keep it through the network.
 
-ORT's NchwcTransformer converts a Conv only when its output channels are a multiple of the
-NCHWc block (8 with AVX2, 16 with AVX-512); WSKP's width-14 layers (Fan21) stayed plain NCHW
-convs, the slowest path. A hidden layer padded with output channels whose weights (and bias)
-are zero, read by the next conv with zero weights, computes the same function: the extra
-channels are 0 and an activation with f(0) = 0 (ReLU, LeakyReLU) keeps them 0. Measured at
-720p on 2 cores: demo:wskp 14 -> 16 ran 0.76x the time per frame, outputs within 4e-7
-(benchmarks/README.md, "Runtime speed").
+ORT's NchwcTransformer runs a Conv blocked only when its input channels are a multiple of the
+NCHWc block (8 with AVX2, 16 with AVX-512) or below it; Concat, pooling and Resize stay
+blocked only when every input is. WSKP's width-14 layers (Fan21) stayed plain NCHW convs, the
+slowest path; AFN's 12-wide half scale and 14-channel input sent its skip concatenations back
+to NCHW and through reorders. Two rewrites, both the same function:
 
-Only chains the rewrite provably preserves are touched: Conv (group 1, weights and bias
-initializers) -> [Relu | LeakyRelu] -> Convs only, the tensors graph-internal, and the growth at
-most `max_growth` (14 -> 16 yes; 4 -> 8 no: doubling a layer costs more than the layout saves).
+- `pad_conv_widths`: a conv's output gets extra channels with zero weights (and bias). The
+  extra channels are 0 and stay 0 through activations with f(0) = 0 (ReLU, LeakyReLU),
+  average / max pooling, Resize and channel concatenation, and the convs that finally read
+  them get zero weights for them (inserted where they sit in a concatenation).
+- `pad_conv_inputs`: a channel concatenation read only by convs gets zero channels appended
+  (ConstantOfShape, the input's batch and size), and its convs zero weights for them.
+
+Measured at 720p on 2 cores: demo:wskp 14 -> 16 ran 0.76x the time per frame, demo:afn (12 ->
+16 at its half scale, input 14 -> 16) 0.95x; outputs within 4e-7 (benchmarks/README.md).
+Only chains these rules cover are touched, and only where the growth is at most `max_growth`
+(12 -> 16 yes; 4 -> 8 no: doubling a layer costs more than the layout saves).
 """
 
 from __future__ import annotations
@@ -20,91 +26,192 @@ from collections import defaultdict
 
 import numpy as np
 import onnx
-from onnx import numpy_helper
+from onnx import TensorProto, helper, numpy_helper
 
-ZERO_PRESERVING = ("Relu", "LeakyRelu")
+ZERO_PRESERVING = ("Relu", "LeakyRelu", "AveragePool", "MaxPool", "Resize")
+CHANNEL_AXES = (1, -3)
 
 
 def _group(node: onnx.NodeProto) -> int:
     return next((int(a.i) for a in node.attribute if a.name == "group"), 1)
 
 
+def _axis(node: onnx.NodeProto) -> int | None:
+    return next((int(a.i) for a in node.attribute if a.name == "axis"), None)
+
+
+def _standard(node: onnx.NodeProto) -> bool:
+    return node.domain in ("", "ai.onnx")
+
+
+class _Graph:
+    """Consumers, initializers and inferred channel counts of a model's main graph."""
+
+    def __init__(self, proto: onnx.ModelProto) -> None:
+        self.proto = proto
+        graph = proto.graph
+        self.inits = {i.name: i for i in graph.initializer}
+        self.consumers: dict[str, list[onnx.NodeProto]] = defaultdict(list)
+        self.uses: dict[str, int] = defaultdict(int)  # initializers shared by nodes stay
+        for n in graph.node:
+            for i in n.input:
+                self.consumers[i].append(n)
+                self.uses[i] += 1
+        self.outputs = {o.name for o in graph.output}
+        inferred = onnx.shape_inference.infer_shapes(proto).graph
+        self.channels: dict[str, int] = {}
+        for v in (*inferred.value_info, *inferred.input, *inferred.output):
+            dims = v.type.tensor_type.shape.dim
+            if len(dims) == 4 and dims[1].HasField("dim_value"):
+                self.channels[v.name] = dims[1].dim_value
+
+    def plain_conv(self, n: onnx.NodeProto) -> bool:
+        """A group-1 Conv whose weights (and bias) are initializers of its own."""
+        return (
+            n.op_type == "Conv"
+            and _standard(n)
+            and _group(n) == 1
+            and all(i in self.inits and self.uses[i] == 1 for i in n.input[1:] if i)
+        )
+
+    def readers(self, tensor: str, at: int) -> tuple[list, list[str]] | None:
+        """Where channels inserted at index `at` of `tensor` end up: the convs that read them,
+        (conv, index of the inserted channels in its input), and every tensor they pass through;
+        None if anything but a plain conv, a zero-preserving op or a channel Concat reads them."""
+        convs: list[tuple[onnx.NodeProto, int]] = []
+        tensors: list[str] = []
+        todo = [(tensor, at)]
+        while todo:
+            name, pos = todo.pop()
+            if name in self.outputs or not self.consumers[name]:
+                return None
+            tensors.append(name)
+            for c in self.consumers[name]:
+                if self.plain_conv(c) and c.input[0] == name and name not in c.input[1:]:
+                    convs.append((c, pos))
+                elif (
+                    c.op_type in ZERO_PRESERVING and _standard(c) and list(c.input).count(name) == 1
+                ):
+                    if c.input[0] != name or (
+                        c.op_type == "Resize" and len(c.input) > 3 and c.input[3]
+                    ):
+                        return None  # a Resize given output sizes would fix the channel count
+                    todo.append((c.output[0], pos))
+                elif c.op_type == "Concat" and _standard(c) and _axis(c) in CHANNEL_AXES:
+                    if list(c.input).count(name) != 1:
+                        return None
+                    before = c.input[: list(c.input).index(name)]
+                    if any(i not in self.channels for i in before):
+                        return None
+                    todo.append((c.output[0], sum(self.channels[i] for i in before) + pos))
+                else:
+                    return None
+        if len({id(c) for c, _ in convs}) != len(convs):
+            return None  # one conv reached twice: leave it
+        return convs, tensors
+
+    def pad_conv_weights(self, convs: list, count: int) -> None:
+        """Insert `count` zero input channels at each conv's index."""
+        for conv, pos in convs:
+            init = self.inits[conv.input[1]]
+            w = numpy_helper.to_array(init)
+            zeros = np.zeros((w.shape[0], count, *w.shape[2:]), w.dtype)
+            _set(init, np.concatenate([w[:, :pos], zeros, w[:, pos:]], axis=1))
+
+    def forget_shapes(self, names: set[str]) -> None:
+        """Drop the stored shapes of `names` (ONNX Runtime and checkers re-infer them)."""
+        graph = self.proto.graph
+        kept = [v for v in graph.value_info if v.name not in names]
+        del graph.value_info[:]
+        graph.value_info.extend(kept)
+
+
 def pad_conv_widths(
-    proto: onnx.ModelProto, multiple: int = 8, max_growth: float = 0.25
+    proto: onnx.ModelProto, multiple: int = 8, max_growth: float = 1 / 3
 ) -> list[tuple[str, int, int]]:
     """Pad, in place, every eligible hidden conv width of the main graph to a multiple of
     `multiple`; returns (conv node name, old width, new width) per padded layer."""
-    graph = proto.graph
-    inits = {i.name: i for i in graph.initializer}
-    consumers: dict[str, list[onnx.NodeProto]] = defaultdict(list)
-    for n in graph.node:
-        for i in n.input:
-            consumers[i].append(n)
-    outputs = {o.name for o in graph.output}
-    uses = defaultdict(int)  # initializers shared by several nodes are left alone
-    for n in graph.node:
-        for i in n.input:
-            uses[i] += 1
-
-    def plain_conv(n: onnx.NodeProto) -> bool:
-        return (
-            n.op_type == "Conv"
-            and n.domain in ("", "ai.onnx")
-            and _group(n) == 1
-            and all(i in inits and uses[i] == 1 for i in n.input[1:])
-        )
-
-    def readers(n: onnx.NodeProto) -> tuple[list[onnx.NodeProto], list[str]] | None:
-        """The convs reading `n`'s output (directly or through one zero-preserving
-        activation) and the tensors whose width changes; None if anything else reads it."""
-        out = n.output[0]
-        if out in outputs:
-            return None
-        convs, tensors = [], [out]
-        for c in consumers[out]:
-            if plain_conv(c) and c.input[0] == out:
-                convs.append(c)
-            elif c.op_type in ZERO_PRESERVING and c.domain in ("", "ai.onnx"):
-                act = c.output[0]
-                nxt = consumers[act]
-                if (
-                    act in outputs
-                    or not nxt
-                    or not all(plain_conv(d) and d.input[0] == act for d in nxt)
-                ):
-                    return None
-                convs += nxt
-                tensors.append(act)
-            else:
-                return None
-        return (convs, tensors) if convs else None
-
     padded = []
-    for n in list(graph.node):
-        if not plain_conv(n):
+    g = _Graph(proto)
+    for n in list(proto.graph.node):
+        if not g.plain_conv(n):
             continue
-        weight = numpy_helper.to_array(inits[n.input[1]])
+        weight = numpy_helper.to_array(g.inits[n.input[1]])
         width = weight.shape[0]
         pad = -width % multiple
-        found = readers(n)
-        if not pad or pad > max_growth * width or found is None:
+        found = g.readers(n.output[0], width) if pad and pad <= max_growth * width else None
+        if found is None:
             continue
         convs, tensors = found
         extra = np.zeros((pad, *weight.shape[1:]), weight.dtype)
-        _set(inits[n.input[1]], np.concatenate([weight, extra]))
+        _set(g.inits[n.input[1]], np.concatenate([weight, extra]))
         if len(n.input) > 2 and n.input[2]:
-            bias = numpy_helper.to_array(inits[n.input[2]])
-            _set(inits[n.input[2]], np.concatenate([bias, np.zeros(pad, bias.dtype)]))
-        for c in convs:
-            w = numpy_helper.to_array(inits[c.input[1]])
-            zeros = np.zeros((w.shape[0], pad, *w.shape[2:]), w.dtype)
-            _set(inits[c.input[1]], np.concatenate([w, zeros], axis=1))
-        changed = {*tensors, *n.input[1:], *(c.input[1] for c in convs)}
-        kept = [v for v in graph.value_info if v.name not in changed]  # shapes re-inferred
-        del graph.value_info[:]
-        graph.value_info.extend(kept)
+            bias = numpy_helper.to_array(g.inits[n.input[2]])
+            _set(g.inits[n.input[2]], np.concatenate([bias, np.zeros(pad, bias.dtype)]))
+        g.pad_conv_weights(convs, pad)
+        g.forget_shapes({*tensors, *n.input[1:], *(c.input[1] for c, _ in convs)})
         padded.append((n.name, width, width + pad))
+        g = _Graph(proto)  # channel counts changed
     return padded
+
+
+def pad_conv_inputs(
+    proto: onnx.ModelProto, multiple: int = 8, max_growth: float = 0.25
+) -> list[tuple[str, int, int]]:
+    """Append, in place, zero channels to every channel Concat of the main graph that only
+    convs read, up to a multiple of `multiple`; returns (Concat node name, old channels, new
+    channels) per padded concatenation."""
+    padded = []
+    g = _Graph(proto)
+    for n in list(proto.graph.node):
+        if n.op_type != "Concat" or not _standard(n) or _axis(n) not in CHANNEL_AXES:
+            continue
+        out = n.output[0]
+        channels = g.channels.get(out)
+        if channels is None:
+            continue
+        pad = -channels % multiple
+        readers = g.consumers[out]
+        if (
+            not pad
+            or pad > max_growth * channels
+            or out in g.outputs
+            or not readers
+            or not all(g.plain_conv(c) and c.input[0] == out for c in readers)
+        ):
+            continue
+        zeros = _zeros_like_channels(proto.graph, n, pad)
+        n.input.append(zeros)
+        g.pad_conv_weights([(c, channels) for c in readers], pad)
+        g.forget_shapes({out, *(c.input[1] for c in readers)})
+        padded.append((n.name, channels, channels + pad))
+        g = _Graph(proto)
+    return padded
+
+
+def _zeros_like_channels(graph: onnx.GraphProto, concat: onnx.NodeProto, count: int) -> str:
+    """Insert before `concat` nodes making zeros (N, count, H, W), N, H, W those of its first
+    input; returns the tensor's name."""
+    first, base = concat.input[0], f"{concat.name}_zeros"
+    count_name = f"{base}_count"
+    graph.initializer.append(numpy_helper.from_array(np.array([count], np.int64), count_name))
+    zero = helper.make_tensor("value", TensorProto.FLOAT, [1], [0.0])
+    nodes = [
+        helper.make_node("Shape", [first], [f"{base}_n"], name=f"{base}_n", start=0, end=1),
+        helper.make_node("Shape", [first], [f"{base}_hw"], name=f"{base}_hw", start=2),
+        helper.make_node(
+            "Concat",
+            [f"{base}_n", count_name, f"{base}_hw"],
+            [f"{base}_shape"],
+            axis=0,
+            name=f"{base}_shape",
+        ),
+        helper.make_node("ConstantOfShape", [f"{base}_shape"], [base], name=base, value=zero),
+    ]
+    at = list(graph.node).index(concat)
+    for k, node in enumerate(nodes):
+        graph.node.insert(at + k, node)
+    return base
 
 
 def _set(init: onnx.TensorProto, value: np.ndarray) -> None:

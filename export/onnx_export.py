@@ -25,7 +25,7 @@ from rtdenoise.runtime.contract import SAMPLES, Declaration
 from rtdenoise.runtime.samples import feature_channels, sample_features_of
 
 from . import ops as onnx_ops
-from .conv_widths import pad_conv_widths
+from .conv_widths import pad_conv_inputs, pad_conv_widths
 from .deploy import to_deploy
 from .ops import IR_VERSION, OPSET
 
@@ -173,6 +173,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
         output_names=wrapper.declared.output_names(),
     )
     pad_conv_widths(proto)  # same function; ORT's blocked conv layout (conv_widths.py)
+    pad_conv_inputs(proto)
     expose_options(proto, wrapper.declared)
     del proto.metadata_props[:]
     for key, value in wrapper.declared.metadata().items():

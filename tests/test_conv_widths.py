@@ -1,5 +1,6 @@
-"""Export pass `export.conv_widths.pad_conv_widths`: hidden conv widths zero-padded to a multiple
-of 8 (ORT's NCHWc layout) compute the same function, and only provably safe chains change."""
+"""Export passes of `export.conv_widths`: hidden conv widths and conv inputs zero-padded to a
+multiple of 8 (ORT's NCHWc layout) compute the same function, and only provably safe chains
+change."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from rtdenoise.export.conv_widths import pad_conv_widths
+from rtdenoise.export.conv_widths import pad_conv_inputs, pad_conv_widths
 
 
 def chain(widths: list[int], act: str = "LeakyRelu", bias: bool = False) -> onnx.ModelProto:
@@ -74,3 +75,76 @@ def test_unsafe_or_costly_chains_are_left_alone() -> None:
         before = model.SerializeToString()
         assert pad_conv_widths(model) == []
         assert model.SerializeToString() == before
+
+
+def unet_level(resize_sizes: bool = False) -> onnx.ModelProto:
+    """x (14 channels, a Concat of 8 + 6) -> Conv 16 -> Relu (skip) -> AveragePool -> Conv 12 ->
+    Relu -> Resize x2 -> Concat [up (12), skip (16)] -> Conv 16 -> y: AFN's level pattern with
+    a 12-wide half scale and a 14-channel input."""
+    rng = np.random.default_rng(2)
+
+    def weight(name: str, c_out: int, c_in: int) -> onnx.TensorProto:
+        w = rng.normal(size=(c_out, c_in, 3, 3)).astype(np.float32) / (3 * c_in**0.5)
+        return numpy_helper.from_array(w, name)
+
+    resize_inputs = ["h1", "", "scales"] if not resize_sizes else ["h1", "", "", "sizes"]
+    nodes = [
+        helper.make_node("Concat", ["a", "b"], ["x"], name="input_cat", axis=1),
+        helper.make_node("Conv", ["x", "w0"], ["c0"], name="enc0", pads=[1] * 4),
+        helper.make_node("Relu", ["c0"], ["skip"]),
+        helper.make_node("AveragePool", ["skip"], ["p"], kernel_shape=[2, 2], strides=[2, 2]),
+        helper.make_node("Conv", ["p", "w1", "b1"], ["c1"], name="enc1", pads=[1] * 4),
+        helper.make_node("Relu", ["c1"], ["h1"]),
+        helper.make_node("Resize", resize_inputs, ["up"], mode="nearest"),
+        helper.make_node("Concat", ["up", "skip"], ["cat"], name="skip_cat", axis=1),
+        helper.make_node("Conv", ["cat", "w2"], ["y"], name="dec0", pads=[1] * 4),
+    ]
+    inits = [
+        weight("w0", 16, 14),
+        weight("w1", 12, 16),
+        numpy_helper.from_array(rng.normal(size=12).astype(np.float32), "b1"),
+        weight("w2", 16, 28),
+        numpy_helper.from_array(np.array([1, 1, 2, 2], np.float32), "scales"),
+        numpy_helper.from_array(np.array([1, 12, 8, 12], np.int64), "sizes"),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "unet",
+        [
+            helper.make_tensor_value_info("a", TensorProto.FLOAT, [1, 8, "H", "W"]),
+            helper.make_tensor_value_info("b", TensorProto.FLOAT, [1, 6, "H", "W"]),
+        ],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 16, "H", "W"])],
+        inits,
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)], ir_version=10)
+    return onnx.shape_inference.infer_shapes(model)
+
+
+def run_unet(model: onnx.ModelProto, h: int, w: int) -> np.ndarray:
+    rng = np.random.default_rng(h * w)
+    feed = {k: rng.normal(size=(1, c, h, w)).astype(np.float32) for k, c in (("a", 8), ("b", 6))}
+    sess = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    return sess.run(None, feed)[0]
+
+
+def test_padding_follows_pooling_resize_and_concat_to_the_convs_that_read_it() -> None:
+    model = unet_level()
+    before = [run_unet(model, h, w) for h, w in ((8, 12), (16, 20))]
+    assert pad_conv_widths(model) == [("enc1", 12, 16)]
+    assert pad_conv_inputs(model) == [("input_cat", 14, 16)]
+    onnx.checker.check_model(model, full_check=True)
+    weights = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    assert weights["w1"].shape == (16, 16, 3, 3) and not weights["w1"][12:].any()
+    # the concat reads [up (12 + 4 zero channels), skip (16)]: zero columns at 12..15
+    assert weights["w2"].shape == (16, 32, 3, 3) and not weights["w2"][:, 12:16].any()
+    assert weights["w0"].shape == (16, 16, 3, 3) and not weights["w0"][:, 14:].any()
+    assert [n.op_type for n in model.graph.node].count("ConstantOfShape") == 1
+    after = [run_unet(model, h, w) for h, w in ((8, 12), (16, 20))]  # any frame size
+    for a, b in zip(after, before, strict=True):
+        assert np.abs(a - b).max() <= 1e-5 * np.abs(b).max()
+
+
+def test_a_resize_to_fixed_sizes_stops_the_padding() -> None:
+    model = unet_level(resize_sizes=True)  # its `sizes` input fixes 12 channels
+    assert pad_conv_widths(model) == []

@@ -25,7 +25,7 @@ LEE24_BUDGET_GFLOP = 14.0  # kernel prediction in 1.46 ms on an RTX 2080 Ti (fid
 
 
 def _weight(name: str, shape: tuple[int, ...]) -> onnx.TensorProto:
-    return helper.make_tensor(name, TensorProto.FLOAT, shape, np.zeros(shape, np.float32).ravel())
+    return helper.make_tensor(name, TensorProto.FLOAT, shape, np.ones(shape, np.float32).ravel())
 
 
 def test_counts_a_hand_made_graph_exactly():
@@ -46,6 +46,25 @@ def test_counts_a_hand_made_graph_exactly():
     assert [c.output for c in costs] == [(1, 4, 40, 60), (1, 8, 20, 30)]
     assert [c.macs for c in costs] == [40 * 60 * 4 * 27, 20 * 30 * 8 * 2]
     assert flops.conv_gflop(model, 40, 60) == pytest.approx(2 * (259_200 + 9_600) / 1e9)
+    assert [c.executed_macs for c in costs] == [c.macs for c in costs]
+
+
+def test_zero_channels_padded_at_export_are_not_the_models_arithmetic():
+    """A 3 -> 4 conv whose weights have a fourth, all-zero input channel and two all-zero output
+    channels (as export/conv_widths.py pads them): 2 x 3 live of 4 x 4."""
+    w = np.zeros((4, 4, 3, 3), np.float32)
+    w[:2, :3] = 1.0
+    graph = helper.make_graph(
+        [helper.make_node("Conv", ["x", "w"], ["y"], pads=[1, 1, 1, 1])],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4, "h", "w"])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, None)],
+        [helper.make_tensor("w", TensorProto.FLOAT, w.shape, w.ravel())],
+    )
+    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+    (cost,) = flops.conv_costs(model, 10, 20)
+    assert cost.executed_macs == 10 * 20 * 4 * 4 * 9
+    assert cost.macs == 10 * 20 * 2 * 3 * 9
 
 
 def test_shipped_afn_is_within_lee24_budget(capsys):
@@ -53,7 +72,7 @@ def test_shipped_afn_is_within_lee24_budget(capsys):
     adds per pixel), so the custom ops' shape rules carried the sizes to the refinement."""
     costs = flops.conv_costs(MODELS_DIR / "afn.onnx", 720, 1280)
     macs = sum(c.macs for c in costs)
-    assert macs == 6939 * 1280 * 720
+    assert macs == 6939 * 1280 * 720  # the zero channels padded for NCHWc not counted
     assert 2 * macs / 1e9 <= LEE24_BUDGET_GFLOP
     flops.main(["demo:afn", "--size", "1280x720", "--json"])
     (result,) = json.loads(capsys.readouterr().out)
