@@ -21,11 +21,14 @@ autograd records on CPU; tests check its gradients against the references'.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import torch
 from numba import njit, prange, uintp
 
 from rtdenoise.ops.affinity_filter import EPS
+from rtdenoise.runtime.kernels._cache import clear_if_sources_changed, kernel_sources
 from rtdenoise.runtime.kernels._common import exp_neg
 from rtdenoise.runtime.kernels.affinity_filter import (
     affinity_taps,
@@ -37,6 +40,8 @@ from rtdenoise.runtime.kernels.affinity_filter import (
 
 from .export_mode import use_custom_op
 
+# The functions below inline the kernels' row helpers: their cache goes with those sources too.
+clear_if_sources_changed(Path(__file__).parent, [*kernel_sources(), Path(__file__)])
 _EPS = np.float32(EPS)
 
 

@@ -8,10 +8,14 @@ docs/architecture.md, "Adding an op".
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from rtdenoise.ops import import_submodules
 
+from ._cache import clear_if_sources_changed
 from .fast_kernel import KERNELS, FastKernel, fast_kernel
 
+clear_if_sources_changed(Path(__file__).parent)  # before any kernel loads numba's cache
 import_submodules(__name__)
 
 
