@@ -14,8 +14,9 @@ to NCHW and through reorders. Two rewrites, both the same function:
 - `pad_conv_inputs`: a channel concatenation read only by convs gets zero channels appended
   (ConstantOfShape, the input's batch and size), and its convs zero weights for them.
 
-Measured at 720p on 2 cores: demo:wskp 14 -> 16 ran 0.76x the time per frame, demo:afn (12 ->
-16 at its half scale, input 14 -> 16) 0.95x; outputs within 4e-7 (benchmarks/README.md).
+Measured at 720p on 2 cores: demo:wskp 14 -> 16 ran 0.76x the time per frame (outputs within
+4e-7), demo:afn (12 -> 16 at its half scale, input 14 -> 16) 0.89x (within 1.2e-6);
+benchmarks/README.md.
 Only chains these rules cover are touched, and only where the growth is at most `max_growth`
 (12 -> 16 yes; 4 -> 8 no: doubling a layer costs more than the layout saves).
 """
@@ -92,10 +93,14 @@ class _Graph:
                 elif (
                     c.op_type in ZERO_PRESERVING and _standard(c) and list(c.input).count(name) == 1
                 ):
-                    if c.input[0] != name or (
-                        c.op_type == "Resize" and len(c.input) > 3 and c.input[3]
-                    ):
-                        return None  # a Resize given output sizes would fix the channel count
+                    sizes = c.op_type == "Resize" and len(c.input) > 3 and c.input[3]
+                    extra = [
+                        o for o in c.output[1:] if o and (self.consumers[o] or o in self.outputs)
+                    ]
+                    if c.input[0] != name or sizes or extra:
+                        # a Resize given output sizes fixes the channel count; a MaxPool's
+                        # indices would be read with the new channels
+                        return None
                     todo.append((c.output[0], pos))
                 elif c.op_type == "Concat" and _standard(c) and _axis(c) in CHANNEL_AXES:
                     if list(c.input).count(name) != 1:
