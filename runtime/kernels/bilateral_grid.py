@@ -14,13 +14,15 @@ cells only. Three parallel passes (few, so that a loaded machine pays few thread
    positive weight sum only, sum T M / sum T.
 
 C channels run 3 at a time (the weights do not depend on the image; a last group of 1 or 2 is
-padded with zeros), so the hot loops have fixed-size cells.
+padded with zeros), so the hot loops have fixed-size cells. Grid offsets are unsigned
+(`uintp`): numba checks signed indices for wrap-around on every access (measured at 720p on
+nbg's inputs: 0.66-0.78x the time of signed offsets, the same bits).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, uintp
 
 from rtdenoise.ops.bilateral_grid import GUIDE_MAX, GUIDE_RANGE, TENT_EPS, grid_shape
 
@@ -96,7 +98,7 @@ def _prepare(image, c0, guide, depth, hom, z0, z1, wz0, wz1):
 def _add(grid, at, wt, p):
     """grid[at : at + CELL] += wt * p."""
     for k in range(CELL):
-        grid[at + k] += wt * p[k]
+        grid[uintp(at + k)] += wt * p[k]
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -129,11 +131,11 @@ def _splat(hom, rows, y_lo, y_hi, x0, x1, wx0, wx1, z0, z1, wz0, wz1, grid, row_
                         if wt > 0.0:
                             _add(grid, at + zb[x], wt, p)
         for at in range(base, base + row_size, CELL):  # Meng20 eq. (10): normalise
-            total = grid[at + CELL - 1]
+            total = grid[uintp(at + CELL - 1)]
             if total > 0.0:
                 inv = _ONE / total
                 for k in range(CELL - 1):
-                    grid[at + k] *= inv
+                    grid[uintp(at + k)] *= inv
 
 
 @njit(parallel=True, cache=True, fastmath=True)
@@ -160,11 +162,11 @@ def _slice(grid, row_size, y0, y1, wy0, wy1, x0, x1, wx0, wx1, z0, z1, wz0, wz1,
                 for xo, wx in ((x0[x], wx0[x]), (x1[x], wx1[x])):
                     wxy = wy * wx
                     for zo, wz in ((za[x], wza[x]), (zb[x], wzb[x])):
-                        a = at_y + xo + zo
-                        wt = wxy * wz if grid[a + 3] > 0.0 else _ZERO
+                        a = uintp(at_y + xo + zo)
+                        wt = wxy * wz if grid[a + uintp(3)] > 0.0 else _ZERO
                         m0 += wt * grid[a]
-                        m1 += wt * grid[a + 1]
-                        m2 += wt * grid[a + 2]
+                        m1 += wt * grid[a + uintp(1)]
+                        m2 += wt * grid[a + uintp(2)]
                         den += wt
             inv = _ONE / den if den > 0.0 else _ZERO
             # channels past the last one (C not a multiple of 3) are written first, then
