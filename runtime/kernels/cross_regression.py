@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, uintp
 
 from rtdenoise.ops.cross_regression import centre_count, reconstruction_offsets
 
@@ -69,9 +69,9 @@ def _centre_sums(q, b, cy, cx, r, acc):
     for k in range(61):
         acc[k] = 0.0
     for dy in range(-r, r + 1):
-        sy = mirror(cy + dy, h)
+        sy = uintp(mirror(cy + dy, h))
         for dx in range(-r, r + 1):
-            sx = mirror(cx + dx, w)
+            sx = uintp(mirror(cx + dx, w))
             d0 = q[b, 0, sy, sx] - c0
             d1 = q[b, 1, sy, sx] - c1
             d2 = q[b, 2, sy, sx] - c2
@@ -97,7 +97,7 @@ def _centre_sums(q, b, cy, cx, r, acc):
                 x2 = q[b, 3 + c, sy, sx] - ca[c]
                 t = q[b, 11 + c, sy, sx]
                 wx1, wx2, wt = wgt * x1, wgt * x2, wgt * t
-                k = 10 + 17 * c
+                k = uintp(10 + 17 * c)
                 acc[k] += wx1
                 acc[k + 1] += wx2
                 acc[k + 2] += wx1 * x1
