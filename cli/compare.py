@@ -212,6 +212,7 @@ def compare_command(
             source = _onnx_source(spec)
             for fast in (True, False) if portable else (True,):
                 label = spec + ("" if fast else " (portable)")
+
                 def remake(source=source, fast=fast) -> Denoiser:
                     return Denoiser(source, fast_kernels=fast, threads=threads)
 

@@ -71,9 +71,7 @@ def oidn_contender(quality: str = "high") -> Contender:
     return Contender(f"OIDN {quality}", denoise, lambda: None, OIDN_BUFFERS, prepare)
 
 
-def model_contender(
-    name: str, denoiser: Any, remake: Callable[[], Any] | None = None
-) -> Contender:
+def model_contender(name: str, denoiser: Any, remake: Callable[[], Any] | None = None) -> Contender:
     """A `rtdenoise.runtime.Denoiser` (or any object with process/reset/required_buffers);
     `remake()` builds another one like it (for `Contender.fresh`)."""
     fresh = None if remake is None else (lambda: model_contender(name, remake(), remake))

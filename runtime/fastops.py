@@ -203,7 +203,7 @@ _fallback_warned = False
 
 
 def default_bridge() -> str:
-    """"native" when the compiled bridge loads (runtime/native_ops.py), else "extensions",
+    """ "native" when the compiled bridge loads (runtime/native_ops.py), else "extensions",
     saying once per process why (the copies cost ~20 % of a 720p frame)."""
     global _fallback_warned
     from . import native_ops

@@ -18,6 +18,7 @@ import numpy as np
 # Calls per op through ORT (tests use it to prove the fast kernel ran).
 CALLS: Counter[str] = Counter()
 
+
 class KernelError(RuntimeError):
     """A fast kernel raised inside ONNX Runtime; the original exception is its __cause__."""
 

@@ -116,4 +116,3 @@ def test_without_the_built_bridge_the_kernels_fall_back_with_one_warning(monkeyp
         assert Denoiser("demo:wskp").bridge == "extensions"
     with pytest.raises(native_ops.BridgeError, match="was not built"):
         Denoiser("demo:wskp", fast_kernels="native")
-
