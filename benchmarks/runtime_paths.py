@@ -29,6 +29,7 @@ import numpy as np  # noqa: E402
 
 from rtdenoise.runtime.compare import model_contender, summarize_times, time_interleaved  # noqa: E402
 from rtdenoise.runtime.denoiser import Denoiser  # noqa: E402
+from rtdenoise.runtime.fastops import BRIDGES  # noqa: E402
 from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
 from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: E402
 
@@ -45,7 +46,7 @@ def parse_variant(text: str) -> tuple[str, dict]:
             kwargs[key] = None
         elif value.lower() == "auto":
             kwargs[key] = "auto"
-        elif value in ("native", "extensions"):  # fast_kernels=native: the bridge
+        elif value in BRIDGES:  # fast_kernels=native: the bridge
             kwargs[key] = value
         elif key in BOOLS or value.lower() in ("true", "false"):
             kwargs[key] = value.lower() in ("1", "true")

@@ -10,6 +10,7 @@ model normalises it, e.g. softmax over taps, before the call).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
@@ -24,15 +25,21 @@ def kernel_size_of(taps: int) -> int:
     return k
 
 
-def _check(shapes, attrs) -> None:
-    k, d = attrs["kernel_size"], attrs["dilation"]
-    if k < 1 or k % 2 == 0 or d < 1:
-        raise ValueError(f"KernelApply needs odd kernel_size and dilation >= 1, got {k}, {d}")
-    same_nhw("KernelApply", shapes, ("image", "kernel"))
-    if shapes[1][1] != k * k:
-        raise ValueError(
-            f"KernelApply: kernel has {shapes[1][1]} channels; expected kernel_size^2 = {k * k}"
-        )
+def kernel_check(op: str, kernel: str) -> Callable[[list, dict], None]:
+    """The `check` of an op applying per-pixel k x k kernels (its input 1, named `kernel`, has
+    k*k channels) to its input 0, `image`: odd k, dilation >= 1, the same N, H, W."""
+
+    def check(shapes, attrs) -> None:
+        k, d = attrs["kernel_size"], attrs["dilation"]
+        if k < 1 or k % 2 == 0 or d < 1:
+            raise ValueError(f"{op} needs odd kernel_size and dilation >= 1, got {k}, {d}")
+        same_nhw(op, shapes, ("image", kernel))
+        if shapes[1][1] != k * k:
+            raise ValueError(
+                f"{op}: {kernel} has {shapes[1][1]} channels; expected kernel_size^2 = {k * k}"
+            )
+
+    return check
 
 
 def _example_inputs(shape, attrs, rng: np.random.Generator) -> list[np.ndarray]:
@@ -54,7 +61,7 @@ SPEC = OpSpec(
     outputs=(Arg("output"),),
     attrs=("kernel_size", "dilation"),
     output_shapes=lambda shapes, attrs: [tuple(shapes[0])],
-    check=_check,
+    check=kernel_check("KernelApply", "kernel"),
     example_inputs=_example_inputs,
     default_attrs={"kernel_size": 7, "dilation": 1},
     example_attrs=(

@@ -15,21 +15,8 @@ from __future__ import annotations
 import numpy as np
 
 from .kernel_apply import SPEC as KERNEL_APPLY
-from .spec import Arg, OpSpec, same_nhw
-
-
-def _check(shapes, attrs) -> None:
-    k, d = attrs["kernel_size"], attrs["dilation"]
-    if k < 1 or k % 2 == 0 or d < 1:
-        raise ValueError(
-            f"SoftmaxKernelApply needs odd kernel_size and dilation >= 1, got {k}, {d}"
-        )
-    same_nhw("SoftmaxKernelApply", shapes, ("image", "logits"))
-    if shapes[1][1] != k * k:
-        raise ValueError(
-            f"SoftmaxKernelApply: logits has {shapes[1][1]} channels; expected kernel_size^2 "
-            f"= {k * k}"
-        )
+from .kernel_apply import kernel_check
+from .spec import Arg, OpSpec
 
 
 def _example_inputs(shape, attrs, rng: np.random.Generator) -> list[np.ndarray]:
@@ -49,7 +36,7 @@ SPEC = OpSpec(
     outputs=(Arg("output"),),
     attrs=KERNEL_APPLY.attrs,
     output_shapes=KERNEL_APPLY.output_shapes,
-    check=_check,
+    check=kernel_check("SoftmaxKernelApply", "logits"),
     example_inputs=_example_inputs,
     default_attrs=KERNEL_APPLY.default_attrs,
     example_attrs=KERNEL_APPLY.example_attrs,

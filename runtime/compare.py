@@ -2,9 +2,9 @@
 
 Speed: every contender denoises the same synthetic frames at every size, all interleaved in
 the same rounds (A B C A B C ...) after a warm-up round, so that a busy machine slows all of
-them and all sizes alike; the report keeps
-every time, the median and the spread (min, max), and the time per pixel. Models run with
-their state carried from frame to frame, as in production; OIDN is single-frame.
+them and all sizes alike; the report keeps every time, the median and the spread (min, max),
+and the time per pixel. Models run with their state carried from frame to frame, as in
+production; OIDN is single-frame.
 Quality: every contender denoises whole sequences with references (tau-PSNR pooled over the
 frames, SSIM, TRMAE; runtime.metrics).
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import itertools
 
+import numpy as np
+
 from rtdenoise.runtime import compare
 
 SIZES = [(16, 24), (720, 1280)]
@@ -21,6 +23,10 @@ def recording_contender(name: str, log: list, ids: itertools.count) -> compare.C
         return recording_contender(name, log, ids)
 
     return compare.Contender(name, denoise, lambda: None, ("color",), fresh=fresh)
+
+
+def fake_frames(buffers, n, h, w, **kwargs):
+    return [{"color": np.zeros((3, h, w), np.float32)} for _ in range(n)]
 
 
 def test_sizes_interleave_each_with_its_own_state(monkeypatch):
@@ -43,12 +49,6 @@ def test_sizes_interleave_each_with_its_own_state(monkeypatch):
     sizes = [s for n, _, s in log if n == "model"]
     timed = sizes[2:]  # after the warm-up round (one frame per size)
     assert timed == ([(16, 24)] * 4 + [(720, 1280)]) * 3
-
-
-def fake_frames(buffers, n, h, w, **kwargs):
-    import numpy as np
-
-    return [{"color": np.zeros((3, h, w), np.float32)} for _ in range(n)]
 
 
 def test_frames_per_round_by_size():

@@ -57,8 +57,10 @@ def temporal_affinity_filter(
     While autograd records on CPU it runs the numba forward / backward (affinity_autograd)."""
     from .affinity_autograd import TemporalAffinityFilterFunction, use_training_kernels
 
-    tensors = (image, features, bandwidth, centre, previous, previous_features)
-    tensors += (temporal_bandwidth, valid)
+    tensors = (
+        image, features, bandwidth, centre, previous, previous_features, temporal_bandwidth,
+        valid,
+    )  # fmt: skip
     if use_training_kernels(*tensors):
         sizes = (kernel_size, temporal_size)
         shapes = [tuple(t.shape) for t in (*tensors, *sizes)]
