@@ -1,7 +1,8 @@
 """Multiply-adds and FLOP of an exported model's convolutions at a frame size.
 
 Counts every `Conv` node of the ONNX graph (the network: predictor, refinement, ImportanceNet,
-GuideNet ...; the filter stages are custom ops and not counted):
+GuideNet ...; the filter stages are custom ops and not counted), and the 1 x 1 conv heads the
+export writes as MatMuls (export/matmul_heads.py; their bias column is not a multiply-add):
 MAC = output elements x (input channels / group) x kernel height x kernel width, and
 FLOP = 2 x MAC (one multiply and one add each; biases and activations are not counted).
 Channels whose weights are all zero are not the model's arithmetic: the export pads conv
@@ -31,6 +32,7 @@ import numpy as np
 import onnx
 from onnx import numpy_helper, shape_inference
 
+from rtdenoise.export.matmul_heads import BIAS_ROW_DOC
 from rtdenoise.ops import DOMAIN, get_spec
 
 
@@ -119,6 +121,9 @@ def conv_costs(model: onnx.ModelProto | str | Path, height: int, width: int) -> 
     weights = {t.name: t for t in model.graph.initializer}
     costs = []
     for node in model.graph.node:
+        if node.op_type == "MatMul" and node.doc_string == BIAS_ROW_DOC:
+            costs.append(_head_cost(node, shapes, weights))
+            continue
         if node.op_type != "Conv" or node.domain not in ("", "ai.onnx"):
             continue
         out, weight = shapes.get(node.output[0]), shapes.get(node.input[1])
@@ -136,6 +141,21 @@ def conv_costs(model: onnx.ModelProto | str | Path, height: int, width: int) -> 
         executed = n_out * per_output
         costs.append(ConvCost(node.output[0], weight, out, round(executed * live), executed))
     return costs
+
+
+def _head_cost(node: onnx.NodeProto, shapes: dict, weights: dict) -> ConvCost:
+    """A 1 x 1 conv head as the export writes it (export/matmul_heads.py): MatMul((T, C + 1)
+    weights, (N, C + 1, H*W) input whose last row is ones); the bias column is not counted."""
+    out, weight = shapes.get(node.output[0]), shapes.get(node.input[0])
+    if out is None or weight is None:
+        raise ValueError(f"MatMul {node.output[0]}: shape unknown")
+    n_out = int(np.prod(out))
+    init = weights.get(node.input[0])
+    w = None if init is None else numpy_helper.to_array(init)[:, :-1, None, None]
+    executed = n_out * weight[1]
+    return ConvCost(
+        node.output[0], weight, out, round(n_out * (weight[1] - 1) * _live_fraction(w, 1)), executed
+    )
 
 
 def conv_gflop(model: onnx.ModelProto | str | Path, height: int, width: int) -> float:

@@ -27,6 +27,7 @@ from rtdenoise.runtime.samples import feature_channels, sample_features_of
 from . import ops as onnx_ops
 from .conv_widths import pad_conv_inputs, pad_conv_widths
 from .deploy import to_deploy
+from .matmul_heads import matmul_heads
 from .ops import IR_VERSION, OPSET
 
 
@@ -174,6 +175,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     )
     pad_conv_widths(proto)  # same function; ORT's blocked conv layout (conv_widths.py)
     pad_conv_inputs(proto)
+    matmul_heads(proto)  # a head split by Slices as MatMuls (matmul_heads.py)
     expose_options(proto, wrapper.declared)
     del proto.metadata_props[:]
     for key, value in wrapper.declared.metadata().items():

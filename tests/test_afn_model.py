@@ -146,6 +146,7 @@ def test_old_checkpoint_configs_rebuild_the_model_they_were_trained_as():
 def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
     """One graph (dynamo, dynamic H and W): the filter stages are rtdenoise custom nodes and ORT
     (fast kernels and portable function bodies) follows PyTorch over moving frames."""
+    from rtdenoise.export.matmul_heads import BIAS_ROW_DOC
     from rtdenoise.export.onnx_export import export_model
     from rtdenoise.export.validate import synthetic_frames, validate
     from rtdenoise.runtime.denoiser import Denoiser
@@ -158,10 +159,13 @@ def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
     ops_used = {n.op_type for n in proto.graph.node}
     assert "Conv" in ops_used and "GridSample" not in ops_used
     # the kernels' softmax happens inside SoftmaxKernelApply: its logits come straight from
-    # the heads (a Conv, or a slice of the full-scale head), not from a softmax in the graph
-    producer = {o: n.op_type for n in proto.graph.node for o in n.output}
+    # the heads (the 1/2-scale Conv; the full-scale head, split between the logits and the
+    # fusion weight, as a MatMul: export/matmul_heads.py), not from a softmax in the graph
+    producer = {o: n for n in proto.graph.node for o in n.output}
     logits = [n.input[1] for n in proto.graph.node if n.op_type == "SoftmaxKernelApply"]
-    assert {producer[x] for x in logits} <= {"Conv", "Slice", "Split"}
+    assert sorted(producer[x].op_type for x in logits) == ["Conv", "Reshape"]
+    (reshaped,) = [producer[x] for x in logits if producer[x].op_type == "Reshape"]
+    assert producer[reshaped.input[0]].doc_string == BIAS_ROW_DOC
     assert "Softmax" not in ops_used
     meta = {p.key: p.value for p in proto.metadata_props}
     assert meta["rtdenoise.family"] == "afn" and meta["rtdenoise.pad_multiple"] == "4"
