@@ -21,6 +21,8 @@ nbg's inputs: 0.66-0.78x the time of signed offsets, the same bits).
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numba import njit, prange, uintp
 
@@ -176,24 +178,35 @@ def _slice(grid, row_size, y0, y1, wy0, wy1, x0, x1, wx0, wx1, z0, z1, wz0, wz1,
             o0[x] = m0 * inv
 
 
-@fast_kernel("BilateralGrid")
-def bilateral_grid(
-    image: np.ndarray, guide: np.ndarray, out: np.ndarray, cell_size: int, grid_depth: int
-) -> None:
-    """image (N, C, H, W), guide (N, 1, H, W) -> out (N, C, H, W)."""
-    n, c, h, w = image.shape
+@lru_cache(maxsize=16)
+def _plan(h: int, w: int, cell_size: int, grid_depth: int) -> tuple:
+    """The tables that depend on the frame and grid sizes only, kept for the next frame (at
+    320x240 building them took about a tenth of nbg's three grids): grid shape, row and column
+    cells and weights (column cells as offsets within a grid row), and for the splat the weight
+    of pixel row y for grid row i with the pixel rows reaching each grid row."""
     gh, gw, d = grid_shape(h, w, cell_size, grid_depth)
-    row_size = gw * d * CELL  # floats per grid row
     y0, y1, wy0, wy1 = _axis_table(h, cell_size, gh)
     x0, x1, wx0, wx1 = _axis_table(w, cell_size, gw)
     x0, x1 = x0 * (d * CELL), x1 * (d * CELL)  # offsets within a grid row
-    # splat: weight of pixel row y for grid row i, and the pixel rows reaching each grid row
     rows = np.zeros((gh, h), np.float32)
     rows[y0, np.arange(h)] += wy0
     rows[y1, np.arange(h)] += wy1
     reach = rows > 0
     y_lo = np.where(reach.any(1), reach.argmax(1), 0)
     y_hi = np.where(reach.any(1), h - reach[:, ::-1].argmax(1), 0)
+    return (gh, gw, d), (y0, y1, wy0, wy1), (x0, x1, wx0, wx1), (rows, y_lo, y_hi)
+
+
+@fast_kernel("BilateralGrid")
+def bilateral_grid(
+    image: np.ndarray, guide: np.ndarray, out: np.ndarray, cell_size: int, grid_depth: int
+) -> None:
+    """image (N, C, H, W), guide (N, 1, H, W) -> out (N, C, H, W)."""
+    n, c, h, w = image.shape
+    (gh, gw, d), (y0, y1, wy0, wy1), (x0, x1, wx0, wx1), (rows, y_lo, y_hi) = _plan(
+        h, w, cell_size, grid_depth
+    )
+    row_size = gw * d * CELL  # floats per grid row
     z0 = np.empty((n, h, w), np.int32)
     z1 = np.empty((n, h, w), np.int32)
     wz0 = np.empty((n, h, w), np.float32)
