@@ -1,0 +1,59 @@
+"""Write x ** c (c a constant, not an integer) as exp(c log x) at export.
+
+ONNX Runtime's CPU Pow with a scalar exponent calls the scalar `pow` per element; Exp, Log and
+Mul vectorise. WSKP's and NBG's gamma curve (x ** (1 / 2.2) on a 3-channel 720p frame, 2
+cores): Pow 20.4 ms, Log + Mul + Exp 10.7 ms, relative difference below 1e-6.
+
+The two agree for every x but -inf, within float32 rounding (relative 1e-6): x > 0, x = 0 (0
+for c > 0, inf for c < 0: exp(c * -inf)), x < 0 or NaN (NaN: the log of a negative number is
+NaN, as is a negative base to a fractional power), x = inf. At x = -inf Pow follows C's pow
+(inf or 0) and exp(c log x) gives NaN. An integer exponent keeps its Pow: (-2) ** 2 = 4, but
+log(-2) is NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+from onnx import helper, numpy_helper
+
+from .conv_widths import _standard
+
+
+def pow_as_exp(proto: onnx.ModelProto) -> list[str]:
+    """Rewrite, in place, every Pow of the main graph whose exponent is a float scalar
+    initializer with a fractional part; returns the names of the rewritten nodes."""
+    graph = proto.graph
+    inits = {i.name: i for i in graph.initializer}
+    nodes, done = [], []
+    for node in graph.node:
+        exponent = inits.get(node.input[1]) if len(node.input) == 2 else None
+        value = None if exponent is None else numpy_helper.to_array(exponent)
+        if (
+            node.op_type != "Pow"
+            or not _standard(node)
+            or value is None
+            or value.size != 1
+            or value.dtype.kind != "f"
+            or not np.isfinite(value).all()
+            or float(value.reshape(())) == np.round(float(value.reshape(())))
+        ):
+            nodes.append(node)
+            continue
+        x, out, base = node.input[0], node.output[0], node.name or node.output[0]
+        c = numpy_helper.from_array(value.astype(np.float32).reshape(()), f"{base}_exponent")
+        graph.initializer.append(c)  # float32 as x (the models' tensors are all float32)
+        nodes += [
+            helper.make_node("Log", [x], [f"{base}_log"], name=f"{base}_log"),
+            helper.make_node("Mul", [f"{base}_log", c.name], [f"{base}_scaled"],
+                             name=f"{base}_scaled"),
+            helper.make_node("Exp", [f"{base}_scaled"], [out], name=f"{base}_exp"),
+        ]  # fmt: skip
+        done.append(node.name)
+    del graph.node[:]
+    graph.node.extend(nodes)
+    used = {i for n in graph.node for i in n.input} | {i.name for i in graph.input}
+    kept = [i for i in graph.initializer if i.name in used]
+    del graph.initializer[:]
+    graph.initializer.extend(kept)
+    return done
