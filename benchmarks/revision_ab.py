@@ -22,6 +22,7 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 
 import numpy as np
@@ -64,6 +65,9 @@ class Worker:
             stdout=subprocess.PIPE,
             env=env,
             text=True,
+            # `python -c` puts the working directory first on the import path: run from a
+            # checkout's root, every side would import that checkout's rtdenoise
+            cwd=tempfile.gettempdir(),
         )
 
     def ask(self, **cmd) -> dict:
@@ -100,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
                 w, h = (int(v) for v in size.split("x"))
                 outs = []
                 for k, worker in enumerate(workers):
-                    worker.ask(op="load", model=model, h=h, w=w)
+                    target = model if model.startswith("demo:") else os.path.abspath(model)
+                    worker.ask(op="load", model=target, h=h, w=w)
                     path = f"/tmp/revision_ab_{os.getpid()}_{k}.npy"
                     worker.ask(op="frame", i=0, save=path)  # warm-up, output kept
                     outs.append(np.load(path))
