@@ -17,7 +17,8 @@ import torch
 
 from .base import FamilyConfig, StateSpec
 from .features import frame_inputs
-from .temporal import TemporalConfig, temporal_accumulation
+from .ops.temporal_accumulation import temporal_accumulation
+from .temporal import TemporalConfig
 
 ACCUMULATION_INPUTS = ("color", "albedo", "normal", "depth", "motion")
 ACCUMULATION_STATE = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))

@@ -1,9 +1,10 @@
 """Temporal reprojection, history validity and accumulation (TA), for the exported graph.
 
-The warp is the custom op `Reproject` (bilinear, border-clamped: rtdenoise.ops.reproject,
-`reproject` re-exported here); the rest exports to standard ONNX ops (Where, ReduceSum, ...):
-no Python branching on tensor values, sizes only through tensor shape ops, so it can live
-inside an exported model graph with dynamic H and W.
+One TA step is the custom op `TemporalAccumulation` (rtdenoise.ops.temporal_accumulation; the
+models call `models.ops.temporal_accumulation.temporal_accumulation`), whose torch form is
+`temporal_step` here: the warp is the op `Reproject` (bilinear, border-clamped:
+rtdenoise.ops.reproject, `reproject` re-exported here), the rest plain tensor ops, no Python
+branching on tensor values.
 
 Conventions (docs/contract.md, "Buffers"): motion vectors are in pixels, x right, y down, and point
 from the current pixel to its previous position: previous = current + motion. Pixel (x, y)
@@ -91,7 +92,7 @@ def accumulate(
     return acc, new_len, alpha
 
 
-def temporal_accumulation(
+def temporal_step(
     current: torch.Tensor,
     motion: torch.Tensor,
     depth: torch.Tensor,
@@ -101,7 +102,9 @@ def temporal_accumulation(
     reset: torch.Tensor,
     config: TemporalConfig = TemporalConfig(),
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """One TA step on C-channel `current` (N, C, H, W).
+    """One TA step on C-channel `current` (N, C, H, W): the torch form of the op
+    TemporalAccumulation (`models.ops.temporal_accumulation.temporal_accumulation`, what the
+    models call; the config's numbers may be 0-d tensors).
 
     ta_state: (N, C + 1, H, W) previous accumulation and its history length;
     geometry_state: (N, 4, H, W) previous normal (3) and depth (1).

@@ -26,7 +26,7 @@ def model() -> AFN:
 
 
 def test_filter_stages_go_through_the_custom_ops(model: AFN):
-    calls = {"SoftmaxKernelApply": [], "AdaptiveFusion": [], "Reproject": []}
+    calls = {"SoftmaxKernelApply": [], "AdaptiveFusion": [], "TemporalAccumulation": []}
 
     def record(op, inputs, attrs, ms):
         if op.name == "AdaptiveFusion":
@@ -42,8 +42,8 @@ def test_filter_stages_go_through_the_custom_ops(model: AFN):
         ((N, 3, H, W), (N, 25, H, W)),
     ]
     assert calls["AdaptiveFusion"] == [(N, 3, H // 2, W // 2)]
-    # the history (ta 4 + geometry 4 channels) is warped once by the motion vectors
-    assert calls["Reproject"] == [((N, 8, H, W), (N, 2, H, W))]
+    # one temporal accumulation step of the demodulated 3-channel frame, with the motion
+    assert calls["TemporalAccumulation"] == [((N, 3, H, W), (N, 2, H, W))]
 
 
 def test_kernel_logits_and_alpha_in_unit_range(model: AFN):
@@ -154,7 +154,7 @@ def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
     proto = export_model(model)
     custom = [n.op_type for n in proto.graph.node if n.domain == "rtdenoise"]
     assert sorted(custom) == [
-        "AdaptiveFusion", "Reproject", "SoftmaxKernelApply", "SoftmaxKernelApply"
+        "AdaptiveFusion", "SoftmaxKernelApply", "SoftmaxKernelApply", "TemporalAccumulation"
     ]  # fmt: skip
     ops_used = {n.op_type for n in proto.graph.node}
     assert "Conv" in ops_used and "GridSample" not in ops_used

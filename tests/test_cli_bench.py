@@ -27,9 +27,9 @@ def test_bench_model_reports_every_path_and_stage(tmp_path, monkeypatch):
     ops = sorted((s["op"], tuple(s["shape"][2:])) for s in data["stages"])
     assert ops == [
         ("AdaptiveFusion", (32, 48)),
-        ("Reproject", (32, 48)),
         ("SoftmaxKernelApply", (16, 24)),
         ("SoftmaxKernelApply", (32, 48)),
+        ("TemporalAccumulation", (32, 48)),
     ]
     assert all(s["calls_per_frame"] == 1 for s in data["stages"])
     # stages are labelled WIDTHxHEIGHT, as --size is given (the tensors are N, C, H, W)

@@ -33,7 +33,7 @@ def test_export_writes_validated_model(checkpoint, tmp_path):
     assert meta["rtdenoise.family"] == "afn"
     assert json.loads(meta["rtdenoise.config"])["widths"] == [8, 12]
     functions = {f.name for f in model.functions}
-    assert functions == {"SoftmaxKernelApply", "AdaptiveFusion", "Reproject"}
+    assert functions == {"SoftmaxKernelApply", "AdaptiveFusion", "TemporalAccumulation"}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["afn.onnx"]
 
 

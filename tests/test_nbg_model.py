@@ -183,13 +183,13 @@ def test_exports_three_grid_nodes_and_matches_ort_over_eight_frames():
     proto = export_model(model)
     nodes = [n for n in proto.graph.node if n.domain == "rtdenoise"]
     assert [(n.op_type, {a.name: a.i for a in n.attribute}) for n in nodes] == [
-        ("Reproject", {})  # the history warp of the temporal accumulation
+        ("TemporalAccumulation", {})  # the history warp and blend
     ] + [
         ("BilateralGrid", {"cell_size": s, "grid_depth": d})
         for s, d in zip(model.cfg.cell_sizes, model.cfg.grid_depths, strict=True)
     ]
     functions = sorted(f.name for f in proto.functions if f.domain == "rtdenoise")
-    assert functions == ["BilateralGrid", "Reproject"]
+    assert functions == ["BilateralGrid", "TemporalAccumulation"]
     meta = {p.key: p.value for p in proto.metadata_props}
     assert meta["rtdenoise.family"] == "nbg" and meta["rtdenoise.pad_multiple"] == "1"
 

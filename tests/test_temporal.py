@@ -6,13 +6,13 @@ import numpy as np
 import torch
 
 from rtdenoise.models.data import flip
+from rtdenoise.models.ops.temporal_accumulation import temporal_accumulation
 from rtdenoise.models.temporal import (
     TemporalConfig,
     accumulate,
     history_validity,
     in_bounds,
     reproject,
-    temporal_accumulation,
 )
 
 H, W = 12, 16

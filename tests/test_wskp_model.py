@@ -169,7 +169,7 @@ def test_exports_one_5x5_conv_per_block_and_matches_ort(model: WSKP):
         n.op_type == "Add" and sum(i in conv_outputs for i in n.input) > 1 for n in nodes
     )
     custom = sorted(n.op_type for n in nodes if n.domain == "rtdenoise")
-    assert custom == ["KernelFusion", "Reproject", "WeightSharingFilter"]
+    assert custom == ["KernelFusion", "TemporalAccumulation", "WeightSharingFilter"]
     wsf = next(n for n in nodes if n.op_type == "WeightSharingFilter")
     assert {a.name: a.i for a in wsf.attribute} == {"size_min": 3, "size_step": 2, "count": 6}
     meta = {p.key: p.value for p in proto.metadata_props}

@@ -15,6 +15,7 @@ time) without knowing the ops.
 from __future__ import annotations
 
 import contextlib
+import threading
 import time
 from collections.abc import Callable, Iterator
 
@@ -29,6 +30,7 @@ Observer = Callable[["TorchOp", tuple[torch.Tensor, ...], dict[str, int], float]
 
 TORCH_OPS: dict[str, TorchOp] = {}
 _observers: list[Observer] = []
+_running = threading.local()  # depth of op calls in progress (observers see the outermost)
 
 
 def _schema(spec: OpSpec) -> str:
@@ -77,11 +79,16 @@ class TorchOp:
         inputs, attrs = self.spec.split_args(args, attrs)
         self.spec.validate_call([tuple(x.shape) for x in inputs], attrs)
         t0 = time.perf_counter() if _observers else 0.0
-        if use_custom_op():
-            out = self.custom(*inputs, *(attrs[a] for a in self.spec.attrs))
-        else:
-            out = self.reference(*inputs, **attrs)
-        if _observers:
+        outer = getattr(_running, "depth", 0) == 0  # not inside another op's torch form
+        _running.depth = getattr(_running, "depth", 0) + 1
+        try:
+            if use_custom_op():
+                out = self.custom(*inputs, *(attrs[a] for a in self.spec.attrs))
+            else:
+                out = self.reference(*inputs, **attrs)
+        finally:
+            _running.depth -= 1
+        if _observers and outer:
             ms = (time.perf_counter() - t0) * 1e3
             for observer in list(_observers):
                 observer(self, inputs, attrs, ms)
@@ -97,7 +104,9 @@ torch_op = form_decorator(TORCH_OPS, "torch form", TorchOp)
 
 @contextlib.contextmanager
 def observe_calls(observer: Observer) -> Iterator[None]:
-    """Call `observer(op, inputs, attrs, ms)` after every op call inside this block."""
+    """Call `observer(op, inputs, attrs, ms)` after every op call inside this block (the
+    model's calls: an op that another op's torch form calls, e.g. Reproject inside
+    TemporalAccumulation, is part of that op's time)."""
     _observers.append(observer)
     try:
         yield
