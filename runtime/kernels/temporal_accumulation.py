@@ -2,19 +2,35 @@
 
 One output row per parallel iteration: Reproject's taps and weights for the row
 (`reproject._taps`), the C + 5 warped state rows gathered into a row buffer
-(`reproject._gather_row`), then per pixel the validity test and the blend, writing the four
-outputs. The float32 arithmetic is the torch form's, step by step and without fastmath, so the
-forms agree to the bit: a history-validity decision that flipped between forms would change a
+(`reproject._gather_row`), then the validity test, n and alpha per pixel, and the blend one
+channel row at a time (branch-free row loops with unsigned indices, which LLVM vectorises:
+0.73x the time of one per-pixel loop over everything at 720p, the same bits).
+
+The float32 arithmetic is the torch form's, step by step and without fastmath, so the forms
+agree to the bit: a history-validity decision that flipped between forms would change a
 pixel's whole history.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, uintp
 
 from .fast_kernel import fast_kernel
 from .reproject import _gather_row, _taps
+
+
+@njit(cache=True)
+def _blend_row(current, history, ok, alpha, accumulated, next_ta):
+    """accumulated[x] = next_ta[x] = alpha current + (1 - alpha) (history where ok, else 0)."""
+    zero, one = np.float32(0.0), np.float32(1.0)
+    for x in range(current.shape[0]):
+        u = uintp(x)
+        a = alpha[u]
+        kept = history[u] if ok[u] else zero
+        value = a * current[u] + (one - a) * kept
+        accumulated[u] = value
+        next_ta[u] = value
 
 
 @njit(parallel=True, cache=True)  # no fastmath (see the module docstring)
@@ -33,6 +49,7 @@ def _temporal_accumulation_nb(
         taps = np.empty((4, w), np.int64)
         weights = np.empty((4, w), np.float32)
         warped = np.empty((n_ch + 5, w), np.float32)
+        ok = np.empty(w, np.bool_)
         mx, my = motion[n, 0, y], motion[n, 1, y]
         _taps(mx, my, y, h, taps, weights)
         t0, t1, t2, t3 = taps[0], taps[1], taps[2], taps[3]
@@ -41,32 +58,34 @@ def _temporal_accumulation_nb(
             _gather_row(ta_planes[n, c], warped[c], t0, t1, t2, t3, w0, w1, w2, w3)
         for c in range(4):
             _gather_row(geo_planes[n, c], warped[n_ch + 1 + c], t0, t1, t2, t3, w0, w1, w2, w3)
+        # per pixel: validity (models.temporal.history_validity), n and alpha (accumulate)
         d_row, y_f = depth[n, 0, y], np.float32(y)
+        nx, ny, nz = normal[n, 0, y], normal[n, 1, y], normal[n, 2, y]
+        count, pnx, pny, pnz = warped[n_ch], warped[n_ch + 1], warped[n_ch + 2], warped[n_ch + 3]
+        prev_depth, alpha, new_len = warped[n_ch + 4], blend[n, 0, y], next_ta[n, n_ch, y]
         for x in range(w):
-            px = np.float32(x) + mx[x]
-            py = y_f + my[x]
-            inside = px >= lo and px <= hi_x and py >= lo and py <= hi_y
-            d = d_row[x]
-            depth_ok = abs(warped[n_ch + 4, x] - d) < tolerance * abs(d)
-            dot = warped[n_ch + 1, x] * normal[n, 0, y, x]
-            dot += warped[n_ch + 2, x] * normal[n, 1, y, x]
-            dot += warped[n_ch + 3, x] * normal[n, 2, y, x]
-            valid = one if inside and depth_ok and dot > threshold else zero
-            ok = valid * keep > half
-            n_prev = warped[n_ch, x] if ok else zero
-            n_next = n_prev + one
-            alpha = max(one / n_next, min_alpha)
-            rest = one - alpha
-            for c in range(n_ch):
-                hist = warped[c, x] if ok else zero
-                acc = alpha * current[n, c, y, x] + rest * hist
-                accumulated[n, c, y, x] = acc
-                next_ta[n, c, y, x] = acc
-            blend[n, 0, y, x] = alpha
-            next_ta[n, n_ch, y, x] = min(n_next, max_history)
-            for c in range(3):
-                next_geometry[n, c, y, x] = normal[n, c, y, x]
-            next_geometry[n, 3, y, x] = d
+            u = uintp(x)
+            px = np.float32(x) + mx[u]
+            py = y_f + my[u]
+            inside = (px >= lo) & (px <= hi_x) & (py >= lo) & (py <= hi_y)
+            d = d_row[u]
+            depth_ok = abs(prev_depth[u] - d) < tolerance * abs(d)
+            dot = pnx[u] * nx[u]
+            dot += pny[u] * ny[u]
+            dot += pnz[u] * nz[u]
+            valid = one if inside & depth_ok & (dot > threshold) else zero
+            kept = valid * keep > half
+            ok[u] = kept
+            n_next = (count[u] if kept else zero) + one
+            alpha[u] = max(one / n_next, min_alpha)
+            new_len[u] = min(n_next, max_history)
+        for c in range(n_ch):  # the blend, one channel row at a time
+            _blend_row(
+                current[n, c, y], warped[c], ok, alpha, accumulated[n, c, y], next_ta[n, c, y]
+            )
+        for c in range(3):
+            next_geometry[n, c, y, :] = normal[n, c, y, :]
+        next_geometry[n, 3, y, :] = d_row
 
 
 @fast_kernel("TemporalAccumulation")
