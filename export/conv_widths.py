@@ -41,11 +41,12 @@ def _axis(node: onnx.NodeProto) -> int | None:
     return next((int(a.i) for a in node.attribute if a.name == "axis"), None)
 
 
-def _standard(node: onnx.NodeProto) -> bool:
+def is_standard(node: onnx.NodeProto) -> bool:
+    """A node of the standard ONNX domain."""
     return node.domain in ("", "ai.onnx")
 
 
-class _Graph:
+class Graph:
     """Consumers, initializers and inferred channel counts of a model's main graph."""
 
     def __init__(self, proto: onnx.ModelProto) -> None:
@@ -70,7 +71,7 @@ class _Graph:
         """A group-1 Conv whose weights (and bias) are initializers of its own."""
         return (
             n.op_type == "Conv"
-            and _standard(n)
+            and is_standard(n)
             and _group(n) == 1
             and all(i in self.inits and self.uses[i] == 1 for i in n.input[1:] if i)
         )
@@ -91,7 +92,9 @@ class _Graph:
                 if self.plain_conv(c) and c.input[0] == name and name not in c.input[1:]:
                     convs.append((c, pos))
                 elif (
-                    c.op_type in ZERO_PRESERVING and _standard(c) and list(c.input).count(name) == 1
+                    c.op_type in ZERO_PRESERVING
+                    and is_standard(c)
+                    and list(c.input).count(name) == 1
                 ):
                     sizes = c.op_type == "Resize" and len(c.input) > 3 and c.input[3]
                     extra = [
@@ -102,7 +105,7 @@ class _Graph:
                         # indices would be read with the new channels
                         return None
                     todo.append((c.output[0], pos))
-                elif c.op_type == "Concat" and _standard(c) and _axis(c) in CHANNEL_AXES:
+                elif c.op_type == "Concat" and is_standard(c) and _axis(c) in CHANNEL_AXES:
                     if list(c.input).count(name) != 1:
                         return None
                     before = c.input[: list(c.input).index(name)]
@@ -137,7 +140,7 @@ def pad_conv_widths(
     """Pad, in place, every eligible hidden conv width of the main graph to a multiple of
     `multiple`; returns (conv node name, old width, new width) per padded layer."""
     padded = []
-    g = _Graph(proto)
+    g = Graph(proto)
     for n in list(proto.graph.node):
         if not g.plain_conv(n):
             continue
@@ -156,7 +159,7 @@ def pad_conv_widths(
         g.pad_conv_weights(convs, pad)
         g.forget_shapes({*tensors, *n.input[1:], *(c.input[1] for c, _ in convs)})
         padded.append((n.name, width, width + pad))
-        g = _Graph(proto)  # channel counts changed
+        g = Graph(proto)  # channel counts changed
     return padded
 
 
@@ -167,9 +170,9 @@ def pad_conv_inputs(
     convs read, up to a multiple of `multiple`; returns (Concat node name, old channels, new
     channels) per padded concatenation."""
     padded = []
-    g = _Graph(proto)
+    g = Graph(proto)
     for n in list(proto.graph.node):
-        if n.op_type != "Concat" or not _standard(n) or _axis(n) not in CHANNEL_AXES:
+        if n.op_type != "Concat" or not is_standard(n) or _axis(n) not in CHANNEL_AXES:
             continue
         out = n.output[0]
         channels = g.channels.get(out)
@@ -190,20 +193,32 @@ def pad_conv_inputs(
         g.pad_conv_weights([(c, channels) for c in readers], pad)
         g.forget_shapes({out, *(c.input[1] for c in readers)})
         padded.append((n.name, channels, channels + pad))
-        g = _Graph(proto)
+        g = Graph(proto)
     return padded
 
 
 def _zeros_like_channels(graph: onnx.GraphProto, concat: onnx.NodeProto, count: int) -> str:
     """Insert before `concat` nodes making zeros (N, count, H, W), N, H, W those of its first
     input; returns the tensor's name."""
-    first, base = concat.input[0], f"{concat.name}_zeros"
+    base = f"{concat.name}_zeros"
+    nodes = constant_channels(graph, concat.input[0], count, 0.0, base)
+    at = list(graph.node).index(concat)
+    for k, node in enumerate(nodes):
+        graph.node.insert(at + k, node)
+    return base
+
+
+def constant_channels(
+    graph: onnx.GraphProto, like: str, count: int, value: float, base: str
+) -> list[onnx.NodeProto]:
+    """Nodes making `base` = `value` everywhere, shape (N, count, H, W) with N, H, W those of
+    the 4-D tensor `like`, and on the way `<base>_n` = [N] and `<base>_hw` = [H, W]."""
     count_name = f"{base}_count"
     graph.initializer.append(numpy_helper.from_array(np.array([count], np.int64), count_name))
-    zero = helper.make_tensor("value", TensorProto.FLOAT, [1], [0.0])
-    nodes = [
-        helper.make_node("Shape", [first], [f"{base}_n"], name=f"{base}_n", start=0, end=1),
-        helper.make_node("Shape", [first], [f"{base}_hw"], name=f"{base}_hw", start=2),
+    fill = helper.make_tensor("value", TensorProto.FLOAT, [1], [value])
+    return [
+        helper.make_node("Shape", [like], [f"{base}_n"], name=f"{base}_n", start=0, end=1),
+        helper.make_node("Shape", [like], [f"{base}_hw"], name=f"{base}_hw", start=2),
         helper.make_node(
             "Concat",
             [f"{base}_n", count_name, f"{base}_hw"],
@@ -211,12 +226,17 @@ def _zeros_like_channels(graph: onnx.GraphProto, concat: onnx.NodeProto, count: 
             axis=0,
             name=f"{base}_shape",
         ),
-        helper.make_node("ConstantOfShape", [f"{base}_shape"], [base], name=base, value=zero),
+        helper.make_node("ConstantOfShape", [f"{base}_shape"], [base], name=base, value=fill),
     ]
-    at = list(graph.node).index(concat)
-    for k, node in enumerate(nodes):
-        graph.node.insert(at + k, node)
-    return base
+
+
+def drop_unread_initializers(graph: onnx.GraphProto, names: set[str]) -> None:
+    """Remove the initializers among `names` that no node and no graph input reads any more
+    (a rewrite's leftovers; other initializers stay, read or not)."""
+    read = {i for n in graph.node for i in n.input} | {i.name for i in graph.input}
+    kept = [i for i in graph.initializer if i.name in read or i.name not in names]
+    del graph.initializer[:]
+    graph.initializer.extend(kept)
 
 
 def _set(init: onnx.TensorProto, value: np.ndarray) -> None:

@@ -8,7 +8,7 @@ cores, 26 ms of conv, 39 ms to reorder its 50 channels and 25 ms for the Split.
 `matmul_heads` rewrites such a conv y = W x + b (W: (T, C), x: (N, C, H, W)), read only by
 constant channel Slices, one part per Slice: a part wider than the input (T_k > C) becomes
 
-    x3 = Reshape(x, (N, C, H*W));   xa = Concat(x3, ones (N, 1, H*W))   (the bias row)
+    xa = Reshape(Concat(x, ones (N, 1, H, W)), (N, C + 1, H*W))   (the bias row)
     y_k = Reshape(MatMul([W_k | b_k], xa), (N, T_k, H, W))
 
 (ORT reorders the C input channels instead of the T_k outputs, and the bias rides in the GEMM:
@@ -23,21 +23,26 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import helper, numpy_helper
 
-from .conv_widths import CHANNEL_AXES, _Graph, _standard
+from .conv_widths import (
+    CHANNEL_AXES,
+    Graph,
+    constant_channels,
+    drop_unread_initializers,
+    is_standard,
+)
 
 # doc_string of the MatMul nodes made here: the last row of their right operand is ones, so
 # the last column of their weights is the conv's bias (benchmarks/flops.py does not count it)
 BIAS_ROW_DOC = "rtdenoise: 1x1 Conv as MatMul; the last input row is ones, its weights the bias"
-INT64_MAX = np.iinfo(np.int64).max
 
 
 def _ints(node: onnx.NodeProto, name: str) -> list[int] | None:
     return next((list(a.ints) for a in node.attribute if a.name == name), None)
 
 
-def _pointwise(g: _Graph, conv: onnx.NodeProto) -> bool:
+def _pointwise(g: Graph, conv: onnx.NodeProto) -> bool:
     """A plain 1 x 1 conv, stride 1, no padding."""
     if not g.plain_conv(conv):
         return False
@@ -52,14 +57,14 @@ def _pointwise(g: _Graph, conv: onnx.NodeProto) -> bool:
     )
 
 
-def _const(g: _Graph, name: str) -> np.ndarray | None:
+def _const(g: Graph, name: str) -> np.ndarray | None:
     init = g.inits.get(name)
     return None if init is None else numpy_helper.to_array(init)
 
 
-def _channel_range(g: _Graph, node: onnx.NodeProto, channels: int) -> tuple[int, int] | None:
+def _channel_range(g: Graph, node: onnx.NodeProto, channels: int) -> tuple[int, int] | None:
     """(start, stop) of a Slice that takes a constant step-1 range of channels, else None."""
-    if node.op_type != "Slice" or not _standard(node) or len(node.input) < 3:
+    if node.op_type != "Slice" or not is_standard(node) or len(node.input) < 3:
         return None
     starts, ends = _const(g, node.input[1]), _const(g, node.input[2])
     axes = _const(g, node.input[3]) if len(node.input) > 3 and node.input[3] else np.array([0])
@@ -74,7 +79,7 @@ def _channel_range(g: _Graph, node: onnx.NodeProto, channels: int) -> tuple[int,
     return (start, stop) if stop > start else None
 
 
-def _slices(g: _Graph, conv: onnx.NodeProto, channels: int) -> list | None:
+def _slices(g: Graph, conv: onnx.NodeProto, channels: int) -> list | None:
     """[(output name, start, stop, Slice node)] of the conv's output, or None unless every
     reader is a constant channel Slice."""
     out = conv.output[0]
@@ -93,7 +98,7 @@ def matmul_heads(proto: onnx.ModelProto) -> list[tuple[str, int, int]]:
     """Rewrite, in place, every 1 x 1 conv of the main graph that only constant channel Slices
     read, one of them wider than the conv's input (module docstring); returns (conv name, in
     channels, out channels)."""
-    g = _Graph(proto)
+    g = Graph(proto)
     graph = proto.graph
     done = []
     for conv in list(graph.node):
@@ -118,14 +123,12 @@ def matmul_heads(proto: onnx.ModelProto) -> list[tuple[str, int, int]]:
         kept[at:at] = nodes
         del graph.node[:]
         graph.node.extend(kept)
-        read = {i for n in graph.node for i in n.input} | {i.name for i in graph.input}
-        gone = {i for n in (conv, *(s for *_, s in parts)) for i in n.input}
-        kept_inits = [i for i in graph.initializer if i.name in read or i.name not in gone]
-        del graph.initializer[:]
-        graph.initializer.extend(kept_inits)
+        drop_unread_initializers(
+            graph, {i for n in (conv, *(s for *_, s in parts)) for i in n.input}
+        )
         g.forget_shapes({conv.output[0]})
         done.append((conv.name, c, t))
-        g = _Graph(proto)
+        g = Graph(proto)
     return done
 
 
@@ -145,7 +148,7 @@ def _matmul_part(graph, conv, base: str, out: str, weight: np.ndarray, bias: np.
         ),
         helper.make_node(
             "Concat",
-            [f"{head}_n", f"{base}_size", f"{head}_hw"],
+            [f"{head}_ones_n", f"{base}_size", f"{head}_ones_hw"],
             [f"{base}_shape"],
             axis=0,
             name=f"{base}_shape",
@@ -167,34 +170,13 @@ def _conv_part(graph, conv, base: str, out: str, weight: np.ndarray, bias: np.nd
 
 
 def _augmented_input(graph: onnx.GraphProto, conv: onnx.NodeProto, channels: int) -> list:
-    """Nodes making `<conv>_xa` = [x as (N, C, H*W); ones (N, 1, H*W)], and the shape pieces
-    `<conv>_n` (N) and `<conv>_hw` (H, W), from the conv's input x."""
+    """Nodes making `<conv>_xa` = [x; ones] as (N, C + 1, H*W) from the conv's input x (N, C,
+    H, W), and on the way the shape pieces `<conv>_ones_n` (N) and `<conv>_ones_hw` (H, W)."""
     x, base = conv.input[0], conv.name or conv.output[0]
     flat = f"{base}_flat_shape"
-    graph.initializer.append(numpy_helper.from_array(np.array([0, channels, -1]), flat))
-    one = f"{base}_one"
-    graph.initializer.append(numpy_helper.from_array(np.array([1]), one))
-    value = helper.make_tensor("value", TensorProto.FLOAT, [1], [1.0])
+    graph.initializer.append(numpy_helper.from_array(np.array([0, channels + 1, -1]), flat))
     return [
-        helper.make_node("Shape", [x], [f"{base}_n"], name=f"{base}_n", start=0, end=1),
-        helper.make_node("Shape", [x], [f"{base}_hw"], name=f"{base}_hw", start=2),
-        helper.make_node("Reshape", [x, flat], [f"{base}_x3"], name=f"{base}_x3"),
-        helper.make_node("Shape", [f"{base}_x3"], [f"{base}_l"], name=f"{base}_l", start=2),
-        helper.make_node(
-            "Concat",
-            [f"{base}_n", one, f"{base}_l"],
-            [f"{base}_ones_shape"],
-            axis=0,
-            name=f"{base}_ones_shape",
-        ),
-        helper.make_node(
-            "ConstantOfShape",
-            [f"{base}_ones_shape"],
-            [f"{base}_ones"],
-            name=f"{base}_ones",
-            value=value,
-        ),
-        helper.make_node(
-            "Concat", [f"{base}_x3", f"{base}_ones"], [f"{base}_xa"], axis=1, name=f"{base}_xa"
-        ),
+        *constant_channels(graph, x, 1, 1.0, f"{base}_ones"),
+        helper.make_node("Concat", [x, f"{base}_ones"], [f"{base}_x1"], axis=1, name=f"{base}_x1"),
+        helper.make_node("Reshape", [f"{base}_x1", flat], [f"{base}_xa"], name=f"{base}_xa"),
     ]

@@ -17,7 +17,7 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from .conv_widths import _standard
+from .conv_widths import drop_unread_initializers, is_standard
 
 
 def pow_as_exp(proto: onnx.ModelProto) -> list[str]:
@@ -25,13 +25,13 @@ def pow_as_exp(proto: onnx.ModelProto) -> list[str]:
     initializer with a fractional part; returns the names of the rewritten nodes."""
     graph = proto.graph
     inits = {i.name: i for i in graph.initializer}
-    nodes, done = [], []
+    nodes, done, exponents = [], [], set()
     for node in graph.node:
         exponent = inits.get(node.input[1]) if len(node.input) == 2 else None
         value = None if exponent is None else numpy_helper.to_array(exponent)
         if (
             node.op_type != "Pow"
-            or not _standard(node)
+            or not is_standard(node)
             or value is None
             or value.size != 1
             or value.dtype.kind != "f"
@@ -50,10 +50,8 @@ def pow_as_exp(proto: onnx.ModelProto) -> list[str]:
             helper.make_node("Exp", [f"{base}_scaled"], [out], name=f"{base}_exp"),
         ]  # fmt: skip
         done.append(node.name)
+        exponents.add(node.input[1])
     del graph.node[:]
     graph.node.extend(nodes)
-    used = {i for n in graph.node for i in n.input} | {i.name for i in graph.input}
-    kept = [i for i in graph.initializer if i.name in used]
-    del graph.initializer[:]
-    graph.initializer.extend(kept)
+    drop_unread_initializers(graph, exponents)
     return done
