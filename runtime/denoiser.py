@@ -54,6 +54,7 @@ from .errors import InputError
 from .external_data import check_external_data
 from .guard import GuardReport, GuardTotals, guard_buffers, replace_nonfinite
 from .interrupts import deferred_signals
+from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities, placed
 
 ModelSource = str | os.PathLike | bytes
 Provider = str | tuple[str, dict[str, Any]]
@@ -257,6 +258,10 @@ class Denoiser:
     threads: threads of ONNX Runtime's intra-op pool and of the fast (numba) kernels, which
         run between its ops (None: each library's default, all cores). The kernels use one
         thread on frames below `serial_below` pixels (padded; default SERIAL_KERNELS_BELOW).
+    pin_threads: during each run, keep the calling thread on its first allowed CPU and the
+        kernels' and ONNX Runtime's workers on the others (Linux; the caller's affinity is
+        restored after each frame). Default True: after an idle gap between frames the
+        scheduler otherwise often stacks threads on one core (`rtdenoise.runtime.placement`).
     spinning: whether ONNX Runtime's idle intra-op threads spin (busy-wait) for work; None
         (default): not while the fast kernels are registered, where they would compete with the
         kernels' threads for the cores (docs/architecture.md, "Threads"), else ORT's default.
@@ -276,6 +281,7 @@ class Denoiser:
         *,
         fast_kernels: bool | str = True,
         threads: int | None = None,
+        pin_threads: bool = True,
         spinning: bool | None = None,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
@@ -297,7 +303,11 @@ class Denoiser:
             if threads < 1:
                 raise InputError(f"threads must be >= 1, got {threads}")
             options.intra_op_num_threads = threads
+            affinities = ort_thread_affinities(threads, allowed_cpus()) if pin_threads else None
+            if affinities:  # ORT places its workers itself only when it picks the count
+                options.add_session_config_entry(INTRA_OP_AFFINITIES, affinities)
         self.threads = threads
+        self.pin_threads = pin_threads
         self.serial_below = SERIAL_KERNELS_BELOW
         self.bridge = ""  # how ONNX Runtime reaches the fast kernels: "native", "extensions"
         if fast_kernels:
@@ -542,17 +552,23 @@ class Denoiser:
         """Raise a fast kernel's exception here, after the run (runtime/fastops.py)."""
         return self._fastops.raise_kernel_errors() if self._fastops else nullcontext()
 
-    def _kernel_threads(self) -> AbstractContextManager[None]:
-        """numba's thread count for the fast kernels of this thread's run (`kernel_threads`)."""
-        if not self._fastops or self._padded is None:
-            return nullcontext()
-        n = kernel_threads(self._padded, self.threads, self.serial_below)
-        return self._fastops.kernel_threads(n)
+    def _kernel_threads(self) -> int | None:
+        """numba's thread count for the fast kernels of this run (`kernel_threads`); 1 without
+        fast kernels, None for numba's own setting."""
+        if not self._fastops:
+            return 1
+        if self._padded is None:
+            return None
+        return kernel_threads(self._padded, self.threads, self.serial_below)
 
     def _session_call(self, run: Callable[..., Any], *args: Any) -> Any:
         """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
-        it returns, before any state is swapped: a failed frame leaves the history as it was."""
-        with deferred_signals(), self._kernel_errors(), self._kernel_threads():
+        it returns, before any state is swapped: a failed frame leaves the history as it was;
+        the kernels on their thread count, the threads placed (`pin_threads`)."""
+        team = self._kernel_threads()
+        counted = self._fastops.kernel_threads(team) if self._fastops else nullcontext()
+        where = placed(team) if self.pin_threads else nullcontext()
+        with deferred_signals(), self._kernel_errors(), counted, where:
             return run(*args)
 
     def _prepare(
