@@ -22,7 +22,8 @@ import numpy as np
 INTRA_OP_AFFINITIES = "session.intra_op_thread_affinities"  # ORT session config key
 _SUPPORTED = hasattr(os, "sched_setaffinity") and hasattr(os, "sched_getaffinity")
 _ONE_CALLER = threading.Lock()  # a concurrent caller is left where it is, not stacked on CPU 0
-_placed_teams: set[tuple[int, int, tuple[int, ...]]] = set()  # (caller, team size, CPUs)
+# (calling thread, team size, its CPUs) -> the worker thread ids pinned for it
+_placed_teams: dict[tuple[int, int, tuple[int, ...]], list[int]] = {}
 _no_thread_ids = False  # set once reading them failed
 
 
@@ -73,7 +74,20 @@ def _place_workers(cpus: list[int], team: int) -> None:
             os.sched_setaffinity(tid, {cpu})
         except OSError:  # the thread has gone, or the host forbids it: leave it be
             pass
-    _placed_teams.add(key)
+    _placed_teams[key] = workers
+
+
+def release_workers() -> None:
+    """Let every worker `placed` pinned run on any allowed CPU again (the next `placed` pins
+    them anew): for comparing placed and unplaced runs in one process."""
+    every = os.sched_getaffinity(0) if _SUPPORTED else set()
+    for workers in _placed_teams.values():
+        for tid in workers:
+            try:
+                os.sched_setaffinity(tid, every)
+            except OSError:
+                pass
+    _placed_teams.clear()
 
 
 @contextmanager
