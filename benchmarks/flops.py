@@ -1,8 +1,9 @@
 """Multiply-adds and FLOP of an exported model's convolutions at a frame size.
 
 Counts every `Conv` node of the ONNX graph (the network: predictor, refinement, ImportanceNet,
-GuideNet ...; the filter stages are custom ops and not counted), and the 1 x 1 conv heads the
-export writes as MatMuls (export/matmul_heads.py; their bias column is not a multiply-add):
+GuideNet ...; the filter stages are custom ops and not counted), the 1 x 1 conv heads the
+export writes as MatMuls (export/matmul_heads.py; their bias column is not a multiply-add), and
+a conv written over its output phases (export/phase_split.py) as the K x K conv it computes:
 MAC = output elements x (input channels / group) x kernel height x kernel width, and
 FLOP = 2 x MAC (one multiply and one add each; biases and activations are not counted).
 Channels whose weights are all zero are not the model's arithmetic: the export pads conv
@@ -33,6 +34,7 @@ import onnx
 from onnx import numpy_helper, shape_inference
 
 from rtdenoise.export.matmul_heads import BIAS_ROW_DOC
+from rtdenoise.export.phase_split import PHASE_SPLIT_DOC
 from rtdenoise.ops import DOMAIN, get_spec
 
 
@@ -138,6 +140,9 @@ def conv_costs(model: onnx.ModelProto | str | Path, height: int, width: int) -> 
         group = next((int(a.i) for a in node.attribute if a.name == "group"), 1)
         init = weights.get(node.input[1])
         live = _live_fraction(None if init is None else numpy_helper.to_array(init), group)
+        if node.doc_string == PHASE_SPLIT_DOC:  # K x K of its (K + 1) x (K + 1) taps are live
+            k = weight[-1] - 1
+            live *= k * k / (weight[-1] * weight[-2])
         executed = n_out * per_output
         costs.append(ConvCost(node.output[0], weight, out, round(executed * live), executed))
     return costs

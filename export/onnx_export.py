@@ -29,6 +29,7 @@ from .conv_widths import pad_conv_inputs, pad_conv_widths
 from .deploy import to_deploy
 from .matmul_heads import matmul_heads
 from .ops import IR_VERSION, OPSET
+from .phase_split import phase_split_convs
 from .pow_as_exp import pow_as_exp
 
 
@@ -176,6 +177,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     )
     pad_conv_widths(proto)  # same function; ORT's blocked conv layout (conv_widths.py)
     pad_conv_inputs(proto)
+    phase_split_convs(proto)  # a narrow K x K conv over its 4 output phases (phase_split.py)
     matmul_heads(proto)  # a head split by Slices as MatMuls (matmul_heads.py)
     pow_as_exp(proto)  # x ** c as exp(c log x): ORT's Pow is scalar (pow_as_exp.py)
     expose_options(proto, wrapper.declared)

@@ -1,0 +1,143 @@
+"""Run a narrow 'same' convolution as one stride-2 conv over its four output phases, at export.
+
+ONNX Runtime's blocked (NCHWc) conv computes output channels in blocks of 8 and reuses each
+loaded input vector across a block; a wide input with few outputs leaves the kernel starved.
+NBG's GuideNet conv 24 -> 5 (5 x 5, sigmoid) ran at about 44 GFLOP/s at 720p on 2 cores,
+against 80-110 for the 16-wide layers. Written over its four output phases it has 4x the
+outputs at a quarter of the positions:
+
+    y[:, :, 2i + py, 2j + px] = Conv(x, W_(py, px), b, stride 2)[:, :, i, j]
+
+where W_(py, px) is the (K + 1) x (K + 1) kernel holding W at offset (py, px) and zeros
+elsewhere (pads K//2 top/left, K//2 + 1 bottom/right). The four phases are one conv of 4 x C_out
+outputs in DepthToSpace's DCR channel order; DepthToSpace(2) interleaves them and a Slice crops
+to H x W (an odd size computes one extra row or column, then drops it). Each output is the same
+products summed in the same order plus exact zeros: ONNX Runtime's outputs were bit-identical.
+A unary activation that is the conv's only reader moves before the DepthToSpace, where ORT
+still fuses it into the conv.
+
+Where it pays (one-conv sessions at 720p, 2 cores, 2026-11-28): K = 5 with at most 5 outputs
+and at least 16 inputs, 0.6-0.8x (24 -> 5: 139 -> 95-108 ms; 32 -> 5: 182 -> 122; 16 -> 3:
+93 -> 57); 3 x 3 kernels, 6 or more outputs, or fewer inputs measured no faster or slower
+(10 -> 4 and 4 -> 3, 3 x 3: 1.5-1.9x). demo:nbg whole frame: 0.94x at 720p, 0.93x at 320x240,
+0.91x at 1080p (benchmarks/README.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+from onnx import helper, numpy_helper
+
+from .conv_widths import Graph, is_standard
+
+MIN_KERNEL = 5  # 3 x 3 convs measured slower split
+MAX_OUTPUTS = 5  # 4 x 5 = 20 phase outputs: three 8-wide blocks, 83% used
+MIN_INPUTS = 16
+# element-wise ops that commute with DepthToSpace + Slice; ORT fuses these into a Conv
+ACTIVATIONS = {"Relu", "LeakyRelu", "Sigmoid", "Tanh", "HardSigmoid", "Clip"}
+# doc_string of a rewritten Conv: (K+1)^2 taps of which K^2 are the model's (benchmarks/flops.py)
+PHASE_SPLIT_DOC = "rtdenoise: stride-2 conv over 4 output phases of a KxK conv, (K+1)^2 taps"
+
+
+def _ints(node: onnx.NodeProto, name: str) -> list[int] | None:
+    return next((list(a.ints) for a in node.attribute if a.name == name), None)
+
+
+def _narrow_same_conv(g: Graph, conv: onnx.NodeProto) -> bool:
+    """A plain square K x K conv (K odd >= MIN_KERNEL), stride and dilation 1, 'same' zero
+    padding, with at most MAX_OUTPUTS outputs and at least MIN_INPUTS inputs."""
+    if not g.plain_conv(conv) or conv.doc_string == PHASE_SPLIT_DOC:
+        return False
+    dims = list(g.inits[conv.input[1]].dims)
+    if len(dims) != 4 or dims[2] != dims[3] or dims[2] % 2 == 0 or dims[2] < MIN_KERNEL:
+        return False
+    k = dims[2]
+    auto_pad = next((a.s for a in conv.attribute if a.name == "auto_pad"), b"NOTSET")
+    return (
+        dims[0] <= MAX_OUTPUTS
+        and dims[1] >= MIN_INPUTS
+        and auto_pad == b"NOTSET"
+        and (_ints(conv, "pads") or [0] * 4) == [k // 2] * 4
+        and all(s == 1 for s in _ints(conv, "strides") or [1])
+        and all(d == 1 for d in _ints(conv, "dilations") or [1])
+    )
+
+
+def phase_weights(weight: np.ndarray) -> np.ndarray:
+    """(C_out, C_in, K, K) -> (4 C_out, C_in, K + 1, K + 1): phase (py, px) at channels
+    (2 py + px) C_out ..., W shifted by (py, px) (DepthToSpace DCR order)."""
+    c_out, c_in, k, _ = weight.shape
+    phases = np.zeros((2, 2, c_out, c_in, k + 1, k + 1), weight.dtype)
+    for py in range(2):
+        for px in range(2):
+            phases[py, px, :, :, py : py + k, px : px + k] = weight
+    return phases.reshape(4 * c_out, c_in, k + 1, k + 1)
+
+
+def phase_split_convs(proto: onnx.ModelProto) -> list[str]:
+    """Rewrite, in place, every narrow 'same' conv of the main graph (`_narrow_same_conv`) as
+    the phase conv + DepthToSpace + Slice of the module docstring; returns their names."""
+    g = Graph(proto)
+    graph = proto.graph
+    done = []
+    for conv in list(graph.node):
+        if not _narrow_same_conv(g, conv):
+            continue
+        weight_init = g.inits[conv.input[1]]
+        weight = numpy_helper.to_array(weight_init)
+        k = weight.shape[2]
+        weight_init.CopyFrom(numpy_helper.from_array(phase_weights(weight), weight_init.name))
+        if len(conv.input) > 2 and conv.input[2]:
+            bias_init = g.inits[conv.input[2]]
+            bias = numpy_helper.to_array(bias_init)
+            bias_init.CopyFrom(numpy_helper.from_array(np.tile(bias, 4), bias_init.name))
+        kept = [a for a in conv.attribute if a.name not in ("kernel_shape", "pads", "strides")]
+        del conv.attribute[:]
+        conv.attribute.extend(kept)
+        p = k // 2
+        conv.attribute.extend(
+            [
+                helper.make_attribute("kernel_shape", [k + 1, k + 1]),
+                helper.make_attribute("pads", [p, p, p + 1, p + 1]),
+                helper.make_attribute("strides", [2, 2]),
+            ]
+        )
+        conv.doc_string = PHASE_SPLIT_DOC
+        readers = g.consumers[conv.output[0]]
+        last = conv
+        if (
+            len(readers) == 1
+            and readers[0].op_type in ACTIVATIONS
+            and is_standard(readers[0])
+            and readers[0].input[0] == conv.output[0]
+            and conv.output[0] not in g.outputs
+        ):
+            last = readers[0]
+        result = last.output[0]  # its name stays: the readers and graph outputs keep it
+        base = conv.name or conv.output[0]
+        phased, full, size = f"{result}_phases", f"{result}_interleaved", f"{base}_size"
+        last.output[0] = phased
+        starts, axes = f"{base}_crop_starts", f"{base}_crop_axes"
+        graph.initializer.extend(
+            [
+                numpy_helper.from_array(np.zeros(2, np.int64), starts),
+                numpy_helper.from_array(np.array([2, 3], np.int64), axes),
+            ]
+        )
+        nodes = [
+            helper.make_node("DepthToSpace", [phased], [full], blocksize=2, mode="DCR",
+                             name=f"{base}_interleave"),
+            helper.make_node("Shape", [conv.input[0]], [size], start=2, end=4,
+                             name=f"{base}_shape"),
+            helper.make_node("Slice", [full, starts, size, axes], [result], name=f"{base}_crop"),
+        ]  # fmt: skip
+        at = list(graph.node).index(last) + 1
+        following = list(graph.node)
+        following[at:at] = nodes
+        del graph.node[:]
+        graph.node.extend(following)
+        g.forget_shapes({conv.output[0], *conv.input[1:]})  # the exporter records weights, too
+        done.append(conv.name)
+        g = Graph(proto)
+    return done
