@@ -259,9 +259,12 @@ class Denoiser:
         run between its ops (None: each library's default, all cores). The kernels use one
         thread on frames below `serial_below` pixels (padded; default SERIAL_KERNELS_BELOW).
     pin_threads: during each run, keep the calling thread on its first allowed CPU and the
-        kernels' and ONNX Runtime's workers on the others (Linux; the caller's affinity is
-        restored after each frame). Default True: after an idle gap between frames the
-        scheduler otherwise often stacks threads on one core (`rtdenoise.runtime.placement`).
+        kernels' workers on the others (Linux; the caller's affinity is restored after each
+        frame): after an idle gap between frames the scheduler otherwise often stacks them on
+        one core (`rtdenoise.runtime.placement`). None (default): when `threads` is None, where
+        ONNX Runtime pins its own workers the same way; with `threads` set (sharing the machine
+        with other processes, as cluster tasks do) nothing is pinned. True with `threads` also
+        places ONNX Runtime's workers.
     spinning: whether ONNX Runtime's idle intra-op threads spin (busy-wait) for work; None
         (default): not while the fast kernels are registered, where they would compete with the
         kernels' threads for the cores (docs/architecture.md, "Threads"), else ORT's default.
@@ -281,7 +284,7 @@ class Denoiser:
         *,
         fast_kernels: bool | str = True,
         threads: int | None = None,
-        pin_threads: bool = True,
+        pin_threads: bool | None = None,
         spinning: bool | None = None,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
@@ -307,7 +310,7 @@ class Denoiser:
             if affinities:  # ORT places its workers itself only when it picks the count
                 options.add_session_config_entry(INTRA_OP_AFFINITIES, affinities)
         self.threads = threads
-        self.pin_threads = pin_threads
+        self.pin_threads = threads is None if pin_threads is None else pin_threads
         self.serial_below = SERIAL_KERNELS_BELOW
         self.bridge = ""  # how ONNX Runtime reaches the fast kernels: "native", "extensions"
         if fast_kernels:

@@ -8,6 +8,8 @@ kernels run at one thread's speed until it spreads them again (demo:nbg, 320x240
 after a 100 ms pause: 46.9 ms unpinned, 37.7 ms placed, 36.9 ms back to back;
 benchmarks/README.md, "Thread placement"). `placed()` pins the caller for the duration of a
 run and restores its affinity after; the kernel workers stay pinned, like ONNX Runtime's.
+`Denoiser` places threads only where ONNX Runtime pins its own (its default thread count):
+processes that share a machine set `threads`, and would otherwise all pin to the same CPUs.
 """
 
 from __future__ import annotations

@@ -77,7 +77,7 @@ def test_a_concurrent_caller_is_left_where_it_is() -> None:
 @multi_cpu
 def test_denoiser_restores_the_callers_affinity_after_good_and_failed_frames(monkeypatch) -> None:
     before = os.sched_getaffinity(0)
-    den = Denoiser("demo:wskp", threads=2)
+    den = Denoiser("demo:wskp", threads=2, pin_threads=True)
     frames = synthetic_frames(den.required_buffers, 2, 16, 24)
     den.process(frames[0])
     assert os.sched_getaffinity(0) == before
@@ -89,6 +89,32 @@ def test_denoiser_restores_the_callers_affinity_after_good_and_failed_frames(mon
     with pytest.raises(Exception, match="broken kernel"):  # as the kernel error it becomes
         den.process(frames[1])
     assert os.sched_getaffinity(0) == before
+
+
+@multi_cpu
+@pytest.mark.parametrize(
+    ("options", "pinned"),
+    [({}, True), ({"threads": 2}, False), ({"threads": 2, "pin_threads": True}, True),
+     ({"pin_threads": False}, False)],
+)  # fmt: skip
+def test_pinned_by_default_only_where_ort_places_its_own_workers(
+    monkeypatch, options: dict, pinned: bool
+) -> None:
+    """threads=None: ORT pins its workers, the run pins the caller to match; threads=N (a
+    process sharing the machine, e.g. a cluster task): nothing is pinned unless asked."""
+    seen: list[set[int]] = []
+    original = FastKernel.compute  # runs on the thread that called process()
+
+    def call(self, *args, **kwargs):
+        seen.append(os.sched_getaffinity(0))
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(FastKernel, "compute", call)
+    den = Denoiser("demo:wskp", **options)
+    den.process(synthetic_frames(den.required_buffers, 1, 16, 24)[0])
+    assert seen
+    want = {CPUS[0]} if pinned else set(CPUS)
+    assert all(s == want for s in seen)
 
 
 def test_pinning_changes_no_numbers() -> None:
