@@ -5,7 +5,7 @@ ONNX Runtime pins its intra-op workers to the CPUs after the first and leaves th
 thread free; numba's OpenMP workers are free too. After an idle gap (a host that renders
 between frames) the scheduler often wakes a worker on the caller's CPU, and the frame's
 kernels run at one thread's speed until it spreads them again (demo:nbg, 320x240, frames
-after a 100 ms pause: 46.9 ms unpinned, 37.7 ms placed, 36.9 ms back to back;
+after a 100 ms pause: 44.2 ms unplaced, 35.5 ms placed, 34.2 ms back to back;
 benchmarks/README.md, "Thread placement"). `placed()` pins the caller for the duration of a
 run and restores its affinity after; the kernel workers stay pinned, like ONNX Runtime's.
 `Denoiser` places threads only where ONNX Runtime pins its own (its default thread count):
