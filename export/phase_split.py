@@ -6,21 +6,22 @@ NBG's GuideNet conv 24 -> 5 (5 x 5, sigmoid) ran at about 44 GFLOP/s at 720p on 
 against 80-110 for the 16-wide layers. Written over its four output phases it has 4x the
 outputs at a quarter of the positions:
 
-    y[:, :, 2i + py, 2j + px] = Conv(x, W_(py, px), b, stride 2)[:, :, i, j]
+    y[:, c, 2i + py, 2j + px] = Conv(x, W_(py, px), b, stride 2)[:, 4c + 2py + px, i, j]
 
 where W_(py, px) is the (K + 1) x (K + 1) kernel holding W at offset (py, px) and zeros
 elsewhere (pads K//2 top/left, K//2 + 1 bottom/right). The four phases are one conv of 4 x C_out
-outputs in DepthToSpace's DCR channel order; DepthToSpace(2) interleaves them and a Slice crops
-to H x W (an odd size computes one extra row or column, then drops it). Each output is the same
+outputs, phase-minor; a ConvTranspose (stride 2, 2 x 2, one group per output channel, one-hot
+weights) interleaves them (5 ms at 720p where ORT's DepthToSpace took 28) and a Slice crops to
+H x W (an odd size computes one extra row or column, then drops it). Each output is the same
 products summed in the same order plus exact zeros: ONNX Runtime's outputs were bit-identical.
-A unary activation that is the conv's only reader moves before the DepthToSpace, where ORT
-still fuses it into the conv.
+(Only non-finite values can differ: an inf in one phase becomes NaN in the three pixels next to
+it, 0 x inf; the runtime keeps its inputs finite.) A unary activation that is the conv's only
+reader moves before the interleave, where ORT still fuses it into the conv.
 
-Where it pays (one-conv sessions at 720p, 2 cores, 2026-11-28): K = 5 with at most 5 outputs
-and at least 16 inputs, 0.6-0.8x (24 -> 5: 139 -> 95-108 ms; 32 -> 5: 182 -> 122; 16 -> 3:
-93 -> 57); 3 x 3 kernels, 6 or more outputs, or fewer inputs measured no faster or slower
-(10 -> 4 and 4 -> 3, 3 x 3: 1.5-1.9x). demo:nbg whole frame: 0.94x at 720p, 0.93x at 320x240,
-0.91x at 1080p (benchmarks/README.md).
+Where it pays (one-conv sessions at 720p, 2 cores, 2026-11-28, with DepthToSpace): K = 5 with
+at most 5 outputs and at least 16 inputs, 0.6-0.8x (24 -> 5: 139 -> 95-108 ms; 32 -> 5: 182 ->
+122; 16 -> 3: 93 -> 57); 3 x 3 kernels, 6 or more outputs, or fewer inputs measured no faster
+or slower (10 -> 4 and 4 -> 3, 3 x 3: 1.5-1.9x). demo:nbg whole frame: benchmarks/README.md.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from .conv_widths import Graph, is_standard
 MIN_KERNEL = 5  # 3 x 3 convs measured slower split
 MAX_OUTPUTS = 5  # 4 x 5 = 20 phase outputs: three 8-wide blocks, 83% used
 MIN_INPUTS = 16
-# element-wise ops that commute with DepthToSpace + Slice; ORT fuses these into a Conv
+# element-wise ops that commute with the interleave and the crop; ORT fuses these into a Conv
 ACTIVATIONS = {"Relu", "LeakyRelu", "Sigmoid", "Tanh", "HardSigmoid", "Clip"}
 # doc_string of a rewritten Conv: (K+1)^2 taps of which K^2 are the model's (benchmarks/flops.py)
 PHASE_SPLIT_DOC = "rtdenoise: stride-2 conv over 4 output phases of a KxK conv, (K+1)^2 taps"
@@ -65,19 +66,29 @@ def _narrow_same_conv(g: Graph, conv: onnx.NodeProto) -> bool:
 
 
 def phase_weights(weight: np.ndarray) -> np.ndarray:
-    """(C_out, C_in, K, K) -> (4 C_out, C_in, K + 1, K + 1): phase (py, px) at channels
-    (2 py + px) C_out ..., W shifted by (py, px) (DepthToSpace DCR order)."""
+    """(C_out, C_in, K, K) -> (4 C_out, C_in, K + 1, K + 1): output channel c's phase
+    (py, px) at channel 4 c + 2 py + px, W shifted by (py, px)."""
     c_out, c_in, k, _ = weight.shape
-    phases = np.zeros((2, 2, c_out, c_in, k + 1, k + 1), weight.dtype)
+    phases = np.zeros((c_out, 2, 2, c_in, k + 1, k + 1), weight.dtype)
     for py in range(2):
         for px in range(2):
-            phases[py, px, :, :, py : py + k, px : px + k] = weight
+            phases[:, py, px, :, py : py + k, px : px + k] = weight
     return phases.reshape(4 * c_out, c_in, k + 1, k + 1)
+
+
+def interleave_weights(c_out: int, dtype: np.dtype) -> np.ndarray:
+    """ConvTranspose weights (4 C_out, 1, 2, 2), group C_out: channel 4 c + 2 py + px to output
+    channel c at offset (py, px)."""
+    one_hot = np.zeros((c_out, 2, 2, 1, 2, 2), dtype)
+    for py in range(2):
+        for px in range(2):
+            one_hot[:, py, px, 0, py, px] = 1
+    return one_hot.reshape(4 * c_out, 1, 2, 2)
 
 
 def phase_split_convs(proto: onnx.ModelProto) -> list[str]:
     """Rewrite, in place, every narrow 'same' conv of the main graph (`_narrow_same_conv`) as
-    the phase conv + DepthToSpace + Slice of the module docstring; returns their names."""
+    the phase conv + interleave + Slice of the module docstring; returns their names."""
     g = Graph(proto)
     graph = proto.graph
     done = []
@@ -86,12 +97,12 @@ def phase_split_convs(proto: onnx.ModelProto) -> list[str]:
             continue
         weight_init = g.inits[conv.input[1]]
         weight = numpy_helper.to_array(weight_init)
-        k = weight.shape[2]
+        c_out, k = weight.shape[0], weight.shape[2]
         weight_init.CopyFrom(numpy_helper.from_array(phase_weights(weight), weight_init.name))
         if len(conv.input) > 2 and conv.input[2]:
             bias_init = g.inits[conv.input[2]]
             bias = numpy_helper.to_array(bias_init)
-            bias_init.CopyFrom(numpy_helper.from_array(np.tile(bias, 4), bias_init.name))
+            bias_init.CopyFrom(numpy_helper.from_array(np.repeat(bias, 4), bias_init.name))
         kept = [a for a in conv.attribute if a.name not in ("kernel_shape", "pads", "strides")]
         del conv.attribute[:]
         conv.attribute.extend(kept)
@@ -119,15 +130,17 @@ def phase_split_convs(proto: onnx.ModelProto) -> list[str]:
         phased, full, size = f"{result}_phases", f"{result}_interleaved", f"{base}_size"
         last.output[0] = phased
         starts, axes = f"{base}_crop_starts", f"{base}_crop_axes"
+        one_hot = f"{base}_interleave_weight"
         graph.initializer.extend(
             [
+                numpy_helper.from_array(interleave_weights(c_out, weight.dtype), one_hot),
                 numpy_helper.from_array(np.zeros(2, np.int64), starts),
                 numpy_helper.from_array(np.array([2, 3], np.int64), axes),
             ]
         )
         nodes = [
-            helper.make_node("DepthToSpace", [phased], [full], blocksize=2, mode="DCR",
-                             name=f"{base}_interleave"),
+            helper.make_node("ConvTranspose", [phased, one_hot], [full], group=c_out,
+                             kernel_shape=[2, 2], strides=[2, 2], name=f"{base}_interleave"),
             helper.make_node("Shape", [conv.input[0]], [size], start=2, end=4,
                              name=f"{base}_shape"),
             helper.make_node("Slice", [full, starts, size, axes], [result], name=f"{base}_crop"),

@@ -1,6 +1,6 @@
 """Export pass `export.phase_split`: a narrow K x K 'same' conv becomes a stride-2 conv over
-its four output phases + DepthToSpace + Slice, with ONNX Runtime's outputs bit-identical at
-even and odd sizes; the convs it does not pay for are left alone."""
+its four output phases + an interleaving ConvTranspose + Slice, with ONNX Runtime's outputs
+bit-identical at even and odd sizes; the convs it does not pay for are left alone."""
 
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ def test_narrow_conv_over_phases_gives_the_same_bits(activation: str | None) -> 
     assert attrs["pads"] == [2, 2, 3, 3]
     order = [n.op_type for n in model.graph.node]
     if activation:  # the activation runs on the phases, next to the conv ORT fuses it into
-        assert order.index(activation) < order.index("DepthToSpace")
+        assert order.index(activation) < order.index("ConvTranspose")
     assert model.graph.output[0].name == "y"
     for x, want in zip(inputs, before, strict=True):
         got = run(model, x)
