@@ -9,8 +9,8 @@ A first pass over the row's k*k logits takes the per-pixel maximum; then, tap by
 exponentials (`exp_neg`, vectorised: numba has no SVML here) go into one row buffer and a
 running total, and each channel accumulates e_t times its shifted source row
 (KernelApply's edge-replicated row and FMA loop); one multiply by 1 / total at the end. The
-normalised kernel is never stored: at 720p 0.92x the time of normalising a (k*k, W) weight
-buffer first (benchmarks/README.md).
+normalised kernel is never stored: 0.91-0.93x the time of normalising a (k*k, W) weight
+buffer first at AFN's sizes (benchmarks/README.md).
 """
 
 from __future__ import annotations
