@@ -41,6 +41,16 @@ def _axis(node: onnx.NodeProto) -> int | None:
     return next((int(a.i) for a in node.attribute if a.name == "axis"), None)
 
 
+def ints_attribute(node: onnx.NodeProto, name: str) -> list[int] | None:
+    """A node's list-of-ints attribute (a Conv's pads, strides ...), None when absent."""
+    return next((list(a.ints) for a in node.attribute if a.name == name), None)
+
+
+def auto_pad(node: onnx.NodeProto) -> bytes:
+    """A Conv's auto_pad (NOTSET when absent)."""
+    return next((a.s for a in node.attribute if a.name == "auto_pad"), b"NOTSET")
+
+
 def is_standard(node: onnx.NodeProto) -> bool:
     """A node of the standard ONNX domain."""
     return node.domain in ("", "ai.onnx")

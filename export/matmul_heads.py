@@ -28,8 +28,10 @@ from onnx import helper, numpy_helper
 from .conv_widths import (
     CHANNEL_AXES,
     Graph,
+    auto_pad,
     constant_channels,
     drop_unread_initializers,
+    ints_attribute,
     is_standard,
 )
 
@@ -38,22 +40,17 @@ from .conv_widths import (
 BIAS_ROW_DOC = "rtdenoise: 1x1 Conv as MatMul; the last input row is ones, its weights the bias"
 
 
-def _ints(node: onnx.NodeProto, name: str) -> list[int] | None:
-    return next((list(a.ints) for a in node.attribute if a.name == name), None)
-
-
 def _pointwise(g: Graph, conv: onnx.NodeProto) -> bool:
     """A plain 1 x 1 conv, stride 1, no padding."""
     if not g.plain_conv(conv):
         return False
     weight = g.inits[conv.input[1]]
-    auto_pad = next((a.s for a in conv.attribute if a.name == "auto_pad"), b"NOTSET")
     return (
         len(weight.dims) == 4
         and tuple(weight.dims[2:]) == (1, 1)
-        and all(s == 1 for s in _ints(conv, "strides") or [1])
-        and all(p == 0 for p in _ints(conv, "pads") or [0])
-        and auto_pad in (b"NOTSET", b"VALID")
+        and all(s == 1 for s in ints_attribute(conv, "strides") or [1])
+        and all(p == 0 for p in ints_attribute(conv, "pads") or [0])
+        and auto_pad(conv) in (b"NOTSET", b"VALID")
     )
 
 

@@ -30,7 +30,7 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from .conv_widths import Graph, is_standard
+from .conv_widths import Graph, auto_pad, ints_attribute, is_standard
 
 MIN_KERNEL = 5  # 3 x 3 convs measured slower split
 MAX_OUTPUTS = 5  # 4 x 5 = 20 phase outputs: three 8-wide blocks, 83% used
@@ -39,10 +39,6 @@ MIN_INPUTS = 16
 ACTIVATIONS = {"Relu", "LeakyRelu", "Sigmoid", "Tanh", "HardSigmoid", "Clip"}
 # doc_string of a rewritten Conv: (K+1)^2 taps of which K^2 are the model's (benchmarks/flops.py)
 PHASE_SPLIT_DOC = "rtdenoise: stride-2 conv over 4 output phases of a KxK conv, (K+1)^2 taps"
-
-
-def _ints(node: onnx.NodeProto, name: str) -> list[int] | None:
-    return next((list(a.ints) for a in node.attribute if a.name == name), None)
 
 
 def _narrow_same_conv(g: Graph, conv: onnx.NodeProto) -> bool:
@@ -54,14 +50,13 @@ def _narrow_same_conv(g: Graph, conv: onnx.NodeProto) -> bool:
     if len(dims) != 4 or dims[2] != dims[3] or dims[2] % 2 == 0 or dims[2] < MIN_KERNEL:
         return False
     k = dims[2]
-    auto_pad = next((a.s for a in conv.attribute if a.name == "auto_pad"), b"NOTSET")
     return (
         dims[0] <= MAX_OUTPUTS
         and dims[1] >= MIN_INPUTS
-        and auto_pad == b"NOTSET"
-        and (_ints(conv, "pads") or [0] * 4) == [k // 2] * 4
-        and all(s == 1 for s in _ints(conv, "strides") or [1])
-        and all(d == 1 for d in _ints(conv, "dilations") or [1])
+        and auto_pad(conv) == b"NOTSET"
+        and (ints_attribute(conv, "pads") or [0] * 4) == [k // 2] * 4
+        and all(s == 1 for s in ints_attribute(conv, "strides") or [1])
+        and all(d == 1 for d in ints_attribute(conv, "dilations") or [1])
     )
 
 
