@@ -47,19 +47,24 @@ def _fma2_row(acc, w0, w1, src, o0, o1):
 
 
 @njit(cache=True, fastmath=True)
+def pad_source_rows(image, n, y, i, k, d, padded):
+    """padded[c] = channel c's source row for kernel row i of output row y (row y + (i - k // 2)
+    d, clamped into the frame), edge-replicated by (k // 2) d on both sides."""
+    yy = min(max(y + (i - k // 2) * d, 0), image.shape[2] - 1)
+    for c in range(image.shape[1]):
+        _pad_row(image[n, c, yy], padded[c], (k // 2) * d)
+
+
+@njit(cache=True, fastmath=True)
 def apply_row(image, kernel, kn, ky, out, n, y, k, d, padded):
     """out[n, :, y] = sum over taps t of kernel[kn, t, ky] * the tap's shifted image row
     (padded: (C, W + 2 r d) scratch). The kernel rows are read from a 4-D array, so that every
     row is a contiguous slice numba vectorises over (a (taps, W) slice would not be)."""
-    n_ch, h = image.shape[1], image.shape[2]
-    r = k // 2
-    p = r * d
+    n_ch = image.shape[1]
     for c in range(n_ch):
         out[n, c, y, :] = 0.0
     for i in range(k):
-        yy = min(max(y + (i - r) * d, 0), h - 1)
-        for c in range(n_ch):
-            _pad_row(image[n, c, yy], padded[c], p)
+        pad_source_rows(image, n, y, i, k, d, padded)
         t0 = i * k
         for j in range(0, k - 1, 2):
             w0 = kernel[kn, t0 + j, ky]

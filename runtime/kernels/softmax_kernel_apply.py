@@ -20,7 +20,7 @@ from numba import njit, prange
 
 from ._common import exp_neg
 from .fast_kernel import fast_kernel
-from .kernel_apply import _fma_row, _pad_row
+from .kernel_apply import _fma_row, pad_source_rows
 
 
 @njit(cache=True, fastmath=True)
@@ -35,8 +35,7 @@ def _exp_row(e, total, logit, top):
 @njit(parallel=True, cache=True, fastmath=True)
 def _softmax_kernel_apply_nb(image, logits, out, k, d):
     n_img, n_ch, h, w = image.shape
-    r = k // 2
-    p = r * d
+    p = (k // 2) * d
     for row in prange(n_img * h):
         n = row // h
         y = row - n * h
@@ -50,9 +49,7 @@ def _softmax_kernel_apply_nb(image, logits, out, k, d):
         for c in range(n_ch):
             out[n, c, y, :] = 0.0
         for i in range(k):
-            yy = min(max(y + (i - r) * d, 0), h - 1)
-            for c in range(n_ch):
-                _pad_row(image[n, c, yy], padded[c], p)
+            pad_source_rows(image, n, y, i, k, d, padded)
             for j in range(k):
                 _exp_row(e, total, logits[n, i * k + j, y], top)
                 for c in range(n_ch):
