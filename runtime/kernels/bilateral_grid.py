@@ -8,8 +8,9 @@ cells only. Three parallel passes (few, so that a loaded machine pays few thread
    numpy tables: they depend on s only);
 2. `_splat` (Meng20 eqs. (10)-(11)), per grid row (n, i): zero its cells, add T * payload from
    the pixel rows that reach it (each pixel row feeds two grid rows, so no two tasks write one
-   cell), divide each cell by its weight sum. The grid is (N, Gh, Gw, D, CELL): a cell is one
-   contiguous run [3 channels, weight sum];
+   cell; neighbouring pixels' sums for the same cells first add up in registers), divide each
+   cell by its weight sum. The grid is (N, Gh, Gw, D, CELL): a cell is one contiguous run
+   [3 channels, weight sum];
 3. `_slice` (Meng20 eq. (13)), per pixel row: the same 8 corners of each pixel, cells with a
    positive weight sum only, sum T M / sum T.
 
@@ -97,19 +98,42 @@ def _prepare(image, c0, guide, depth, hom, z0, z1, wz0, wz1):
 
 
 @njit(cache=True, fastmath=True)
-def _add(grid, at, wt, p):
-    """grid[at : at + CELL] += wt * p."""
-    for k in range(CELL):
-        grid[uintp(at + k)] += wt * p[k]
+def _add(grid, at, c0, c1, c2, c3):
+    """grid[at : at + CELL] += [c0, c1, c2, c3]."""
+    u = uintp(at)
+    grid[u] += c0
+    grid[u + uintp(1)] += c1
+    grid[u + uintp(2)] += c2
+    grid[u + uintp(3)] += c3
+
+
+@njit(cache=True, fastmath=True)
+def _normalise(cells):
+    """cells (n, CELL) of sums [T image, T] -> [T image / T, T] (Meng20 eq. (10)); branch-free
+    (an empty cell is all zeros and stays so), which LLVM vectorises: the splat at s = 4, D =
+    64 (720p) took 9.4-10.0 ms with it, 14.0 with a branch per cell."""
+    for j in range(cells.shape[0]):
+        total = cells[j, CELL - 1]
+        inv = _ONE / total if total > 0.0 else _ZERO
+        for k in range(CELL - 1):
+            cells[j, k] *= inv
 
 
 @njit(parallel=True, cache=True, fastmath=True)
 def _splat(hom, rows, y_lo, y_hi, x0, x1, wx0, wx1, z0, z1, wz0, wz1, grid, row_size):
     """Flat grid (N, Gh, Gw, D, CELL): each cell = [sum T image / sum T, sum T] over the pixels
     reaching it. One task per grid row (n, i), fed by the pixel rows y_lo[i] .. y_hi[i] - 1 with
-    their weight for row i in rows[i, y] (no two tasks write one cell)."""
+    their weight for row i in rows[i, y] (no two tasks write one cell).
+
+    Along a pixel row, neighbours mostly add to the same cells (s pixels share a column cell,
+    a smooth guide keeps the depth cell): each of the pixel's two column cells keeps its
+    depth-cell pair's sums in registers while the next pixel adds to the same pair, and adds
+    them to the grid when the pair changes (the splat at 720p on nbg's guides, s = 4: 7.3 ms
+    against 9.4-10.0 with a read-modify-write of the grid per pixel and corner; s = 8 and 16:
+    the same time). Zero weights add zeros, as in the torch form."""
     n_img, _, w, _ = hom.shape
     gh = rows.shape[0]
+    cells = grid.reshape(grid.shape[0] // row_size, row_size // CELL, CELL)
     for task in prange(n_img * gh):
         n, i = task // gh, task % gh
         base = task * row_size
@@ -120,24 +144,58 @@ def _splat(hom, rows, y_lo, y_hi, x0, x1, wx0, wx1, z0, z1, wz0, wz1, grid, row_
                 continue
             pixels = hom[n, y]
             za, zb, wza, wzb = z0[n, y], z1[n, y], wz0[n, y], wz1[n, y]
+            # open sums: column cell x0 (a) and x1 (b), each at depth cells (za, zb), keyed by
+            # 2 (x + za) + (za == zb) (zb = za at the clamped ends of the depth axis)
+            key_a = key_b = -1  # -1: none open
+            at_a = at_az = at_b = at_bz = 0  # their grid offsets
+            a0 = a1 = a2 = a3 = az0 = az1 = az2 = az3 = _ZERO
+            b0 = b1 = b2 = b3 = bz0 = bz1 = bz2 = bz3 = _ZERO
             for x in range(w):
                 p = pixels[x]
-                for xo, wx in ((x0[x], wx0[x]), (x1[x], wx1[x])):
-                    wxy = wy * wx
-                    if wxy > 0.0:
-                        at = base + xo
-                        wt = wxy * wza[x]
-                        if wt > 0.0:
-                            _add(grid, at + za[x], wt, p)
-                        wt = wxy * wzb[x]
-                        if wt > 0.0:
-                            _add(grid, at + zb[x], wt, p)
-        for at in range(base, base + row_size, CELL):  # Meng20 eq. (10): normalise
-            total = grid[uintp(at + CELL - 1)]
-            if total > 0.0:
-                inv = _ONE / total
-                for k in range(CELL - 1):
-                    grid[uintp(at + k)] *= inv
+                p0, p1, p2, p3 = p[0], p[1], p[2], p[3]
+                zs = za[x]
+                same = 1 if zs == zb[x] else 0
+                key = 2 * (x0[x] + zs) + same
+                if key != key_a:
+                    if key_a >= 0:
+                        _add(grid, at_a, a0, a1, a2, a3)
+                        _add(grid, at_az, az0, az1, az2, az3)
+                    key_a, at_a, at_az = key, base + x0[x] + zs, base + x0[x] + zb[x]
+                    a0 = a1 = a2 = a3 = az0 = az1 = az2 = az3 = _ZERO
+                wxy = wy * wx0[x]
+                t, tz = wxy * wza[x], wxy * wzb[x]
+                a0 += t * p0
+                a1 += t * p1
+                a2 += t * p2
+                a3 += t * p3
+                az0 += tz * p0
+                az1 += tz * p1
+                az2 += tz * p2
+                az3 += tz * p3
+                key = 2 * (x1[x] + zs) + same
+                if key != key_b:
+                    if key_b >= 0:
+                        _add(grid, at_b, b0, b1, b2, b3)
+                        _add(grid, at_bz, bz0, bz1, bz2, bz3)
+                    key_b, at_b, at_bz = key, base + x1[x] + zs, base + x1[x] + zb[x]
+                    b0 = b1 = b2 = b3 = bz0 = bz1 = bz2 = bz3 = _ZERO
+                wxy = wy * wx1[x]
+                t, tz = wxy * wza[x], wxy * wzb[x]
+                b0 += t * p0
+                b1 += t * p1
+                b2 += t * p2
+                b3 += t * p3
+                bz0 += tz * p0
+                bz1 += tz * p1
+                bz2 += tz * p2
+                bz3 += tz * p3
+            if key_a >= 0:
+                _add(grid, at_a, a0, a1, a2, a3)
+                _add(grid, at_az, az0, az1, az2, az3)
+            if key_b >= 0:
+                _add(grid, at_b, b0, b1, b2, b3)
+                _add(grid, at_bz, bz0, bz1, bz2, bz3)
+        _normalise(cells[task])  # Meng20 eq. (10), the row still in cache
 
 
 @njit(parallel=True, cache=True, fastmath=True)
