@@ -6,7 +6,11 @@ plain NCHW itself, reorders at the session's edges included) and `torch.nn.funct
 on NCHW tensors (what a PyTorch model runs by default) and on channels-last tensors; random
 inputs of the node's shape, the node's own weights; threads as given (both libraries).
 Median ms per call over `--repeats` rounds (A B C A B C ..., after a warm-up call), and GFLOP/s
-of the executed multiply-adds. Shows where the networks' time goes in each library.
+of the executed multiply-adds. Shows where the networks' time goes in each library. Both run
+as `denoise-bench compare` runs them: idle OpenMP workers sleeping (OMP_WAIT_POLICY=PASSIVE)
+and large blocks served from the reused malloc heap (`tune_allocator`); without it each
+torch call page-faults its fresh output (at 720p that doubled torch's time per conv on a
+2-core AVX-512 VM, where a conv inside the eager model ran at ORT's speed, not half of it).
 
     python benchmarks/conv_speed.py demo:wskp --size 1280x720 --repeats 5
 """
@@ -14,17 +18,23 @@ of the executed multiply-adds. Shows where the networks' time goes in each libra
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
 from functools import partial
 from pathlib import Path
 
-import numpy as np
-import onnx
-import onnxruntime as ort
-import torch
-from onnx import TensorProto, helper, numpy_helper
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # as the CLIs set it, before torch loads
+
+import numpy as np  # noqa: E402
+import onnx  # noqa: E402
+import onnxruntime as ort  # noqa: E402
+import torch  # noqa: E402
+import torch.nn.functional as F  # noqa: E402
+from onnx import TensorProto, helper, numpy_helper  # noqa: E402
+
+from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import flops  # noqa: E402
@@ -46,20 +56,22 @@ def conv_model(node: onnx.NodeProto, inits: dict, shape: tuple[int, ...]) -> byt
     return helper.make_model(graph, opset_imports=opset, ir_version=10).SerializeToString()
 
 
-def torch_args(node: onnx.NodeProto, inits: dict) -> dict:
+def torch_args(node: onnx.NodeProto, inits: dict) -> tuple[tuple[int, ...], dict]:
+    """(F.pad widths, conv2d keywords) of an ONNX Conv: symmetric pads go to conv2d, others
+    (export/phase_split.py's stride-2 convs) to an explicit zero pad first."""
     attrs = {a.name: helper.get_attribute_value(a) for a in node.attribute}
-    pads = attrs.get("pads", [0, 0, 0, 0])
-    if pads[:2] != pads[2:]:
-        raise ValueError(f"{node.name}: asymmetric pads {pads}")
+    top, left, bottom, right = attrs.get("pads", [0, 0, 0, 0])
+    symmetric = (top, left) == (bottom, right)
+    explicit = (0, 0, 0, 0) if symmetric else (left, right, top, bottom)
     weight = torch.from_numpy(numpy_helper.to_array(inits[node.input[1]]).copy())
     bias = node.input[2] if len(node.input) > 2 and node.input[2] else None
-    return {
+    return explicit, {
         "weight": weight,
         "bias": None
         if bias is None
         else torch.from_numpy(numpy_helper.to_array(inits[bias]).copy()),
         "stride": tuple(attrs.get("strides", [1, 1])),
-        "padding": tuple(pads[:2]),
+        "padding": (top, left) if symmetric else (0, 0),
         "dilation": tuple(attrs.get("dilations", [1, 1])),
         "groups": attrs.get("group", 1),
     }
@@ -72,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--threads", type=int, default=0, help="0: each library's default")
     args = ap.parse_args(argv)
+    tune_allocator()
     width, height = (int(v) for v in args.size.split("x"))
     path = flops._resolve(args.model)
     model = onnx.load(str(path))
@@ -94,14 +107,14 @@ def main(argv: list[str] | None = None) -> int:
         shape = shapes[node.input[0]]
         x = rng.standard_normal(shape, dtype=np.float32)
         sess = ort.InferenceSession(conv_model(node, inits, shape), so)
-        targs = torch_args(node, inits)
-        xt = torch.from_numpy(x)
+        pad, targs = torch_args(node, inits)
+        xt = F.pad(torch.from_numpy(x), pad)
         xl = xt.contiguous(memory_format=torch.channels_last)
         targs_l = dict(targs, weight=targs["weight"].contiguous(memory_format=torch.channels_last))
         calls = (
             partial(sess.run, None, {"x": x}),
-            partial(torch.nn.functional.conv2d, xt, **targs),
-            partial(torch.nn.functional.conv2d, xl, **targs_l),
+            partial(F.conv2d, xt, **targs),
+            partial(F.conv2d, xl, **targs_l),
         )
         times: list[list[float]] = [[] for _ in calls]
         with torch.inference_mode():
