@@ -115,7 +115,7 @@ def measure(spec: str, h: int, w: int, frames: int) -> dict[str, float]:
     seq = synthetic_frames(den.required_buffers, 4, h, w)
     tensors = [{k: torch.from_numpy(v) for k, v in f.items()} for f in seq]
     eager, eager_conv, ours = [], [], []
-    with torch.inference_mode():
+    with torch.no_grad():  # as export/eager_compare.py (an online model takes gradients)
         for i in range(frames + 1):
             t0 = time.perf_counter()
             loop(tensors[i % len(seq)])[0].numpy()

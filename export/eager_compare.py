@@ -39,7 +39,7 @@ def eager_contender(name: str, checkpoint: str | os.PathLike, device: str = "cpu
     def prepare(frame: Frame) -> dict[str, torch.Tensor]:
         return {k: torch.from_numpy(np.ascontiguousarray(frame[k])).to(dev) for k in model.inputs}
 
-    @torch.inference_mode()
+    @torch.no_grad()  # not inference_mode: an online model (crossreg) takes gradients inside
     def denoise(tensors: dict[str, torch.Tensor]) -> np.ndarray:
         out = loop(tensors)[0].cpu().numpy()
         _sync(dev)

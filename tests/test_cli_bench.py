@@ -101,17 +101,17 @@ def test_compare_without_pyoidn_says_what_to_install(monkeypatch):
 
 
 def test_compare_eager_is_the_deployed_model_of_the_same_checkpoint(tmp_path):
-    """--eager adds PyTorch eager of each model (a per-sample one included): same quality as ORT,
-    timed beside it."""
+    """--eager adds PyTorch eager of each model (a per-sample one and one that learns while it
+    runs included): same quality as ORT, timed beside it."""
     out = tmp_path / "c.json"
     seq = str(sample_sequences()[1])
-    args = ["compare", "demo:wskp", "demo:affinity", "--eager", "--oidn", "none"]
+    args = ["compare", "demo:wskp", "demo:affinity", "demo:crossreg", "--eager", "--oidn", "none"]
     args += ["--size", "24x16", "--repeats", "1", "--sequence", seq, "--json", str(out)]
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
     data = json.loads(out.read_text())
     assert data["device"] == "cpu"
-    for spec in ("demo:wskp", "demo:affinity"):
+    for spec in ("demo:wskp", "demo:affinity", "demo:crossreg"):
         eager = f"{spec} (PyTorch cpu)"
         assert set(data["speed"][0]["times_ms"]) >= {spec, eager}
         q = data["quality"]
