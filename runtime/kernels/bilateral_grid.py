@@ -119,19 +119,50 @@ def _normalise(cells):
             cells[j, k] *= inv
 
 
+@njit(cache=True, fastmath=True)
+def _splat_row(grid, base, pixels, xo, wx, wy, za, zb, wza, wzb):
+    """Add one pixel row's contributions to its column cells xo[x] (weights wy wx[x]) at depth
+    cells za[x], zb[x] of the grid row at `base`. Neighbours mostly add to the same pair of
+    cells (s pixels share a column cell, a smooth guide keeps the depth cell): the pair's sums
+    stay in registers while the next pixel adds to the same pair and go to the grid when it
+    changes."""
+    key_open = -1  # 2 (xo + za) + (za == zb) of the open pair (zb = za at the clamped ends)
+    at = at_z = 0
+    s0 = s1 = s2 = s3 = t0 = t1 = t2 = t3 = _ZERO
+    for x in range(pixels.shape[0]):
+        p = pixels[x]
+        zs = za[x]
+        key = 2 * (xo[x] + zs) + (1 if zs == zb[x] else 0)
+        if key != key_open:
+            if key_open >= 0:
+                _add(grid, at, s0, s1, s2, s3)
+                _add(grid, at_z, t0, t1, t2, t3)
+            key_open, at, at_z = key, base + xo[x] + zs, base + xo[x] + zb[x]
+            s0 = s1 = s2 = s3 = t0 = t1 = t2 = t3 = _ZERO
+        wxy = wy * wx[x]
+        wa, wb = wxy * wza[x], wxy * wzb[x]
+        s0 += wa * p[0]
+        s1 += wa * p[1]
+        s2 += wa * p[2]
+        s3 += wa * p[3]
+        t0 += wb * p[0]
+        t1 += wb * p[1]
+        t2 += wb * p[2]
+        t3 += wb * p[3]
+    if key_open >= 0:
+        _add(grid, at, s0, s1, s2, s3)
+        _add(grid, at_z, t0, t1, t2, t3)
+
+
 @njit(parallel=True, cache=True, fastmath=True)
 def _splat(hom, rows, y_lo, y_hi, x0, x1, wx0, wx1, z0, z1, wz0, wz1, grid, row_size):
     """Flat grid (N, Gh, Gw, D, CELL): each cell = [sum T image / sum T, sum T] over the pixels
     reaching it. One task per grid row (n, i), fed by the pixel rows y_lo[i] .. y_hi[i] - 1 with
-    their weight for row i in rows[i, y] (no two tasks write one cell).
-
-    Along a pixel row, neighbours mostly add to the same cells (s pixels share a column cell,
-    a smooth guide keeps the depth cell): each of the pixel's two column cells keeps its
-    depth-cell pair's sums in registers while the next pixel adds to the same pair, and adds
-    them to the grid when the pair changes (the splat at 720p on nbg's guides, s = 4: 7.3 ms
-    against 9.4-10.0 with a read-modify-write of the grid per pixel and corner; s = 8 and 16:
-    the same time). Zero weights add zeros, as in the torch form."""
-    n_img, _, w, _ = hom.shape
+    their weight for row i in rows[i, y] (no two tasks write one cell), each pixel row once
+    for its first column cells and once for its second (`_splat_row`). Zero weights add zeros,
+    as in the torch form. At 720p on nbg's guides, s = 4: 8.1 ms against 9.4-10.0 with a
+    read-modify-write of the grid per pixel and corner; s = 8 and 16: the same time."""
+    n_img = hom.shape[0]
     gh = rows.shape[0]
     cells = grid.reshape(grid.shape[0] // row_size, row_size // CELL, CELL)
     for task in prange(n_img * gh):
@@ -140,61 +171,10 @@ def _splat(hom, rows, y_lo, y_hi, x0, x1, wx0, wx1, z0, z1, wz0, wz1, grid, row_
         grid[base : base + row_size] = 0.0
         for y in range(y_lo[i], y_hi[i]):
             wy = rows[i, y]
-            if not wy > 0.0:
-                continue
-            pixels = hom[n, y]
-            za, zb, wza, wzb = z0[n, y], z1[n, y], wz0[n, y], wz1[n, y]
-            # open sums: column cell x0 (a) and x1 (b), each at depth cells (za, zb), keyed by
-            # 2 (x + za) + (za == zb) (zb = za at the clamped ends of the depth axis)
-            key_a = key_b = -1  # -1: none open
-            at_a = at_az = at_b = at_bz = 0  # their grid offsets
-            a0 = a1 = a2 = a3 = az0 = az1 = az2 = az3 = _ZERO
-            b0 = b1 = b2 = b3 = bz0 = bz1 = bz2 = bz3 = _ZERO
-            for x in range(w):
-                p = pixels[x]
-                p0, p1, p2, p3 = p[0], p[1], p[2], p[3]
-                zs = za[x]
-                same = 1 if zs == zb[x] else 0
-                key = 2 * (x0[x] + zs) + same
-                if key != key_a:
-                    if key_a >= 0:
-                        _add(grid, at_a, a0, a1, a2, a3)
-                        _add(grid, at_az, az0, az1, az2, az3)
-                    key_a, at_a, at_az = key, base + x0[x] + zs, base + x0[x] + zb[x]
-                    a0 = a1 = a2 = a3 = az0 = az1 = az2 = az3 = _ZERO
-                wxy = wy * wx0[x]
-                t, tz = wxy * wza[x], wxy * wzb[x]
-                a0 += t * p0
-                a1 += t * p1
-                a2 += t * p2
-                a3 += t * p3
-                az0 += tz * p0
-                az1 += tz * p1
-                az2 += tz * p2
-                az3 += tz * p3
-                key = 2 * (x1[x] + zs) + same
-                if key != key_b:
-                    if key_b >= 0:
-                        _add(grid, at_b, b0, b1, b2, b3)
-                        _add(grid, at_bz, bz0, bz1, bz2, bz3)
-                    key_b, at_b, at_bz = key, base + x1[x] + zs, base + x1[x] + zb[x]
-                    b0 = b1 = b2 = b3 = bz0 = bz1 = bz2 = bz3 = _ZERO
-                wxy = wy * wx1[x]
-                t, tz = wxy * wza[x], wxy * wzb[x]
-                b0 += t * p0
-                b1 += t * p1
-                b2 += t * p2
-                b3 += t * p3
-                bz0 += tz * p0
-                bz1 += tz * p1
-                bz2 += tz * p2
-                bz3 += tz * p3
-            if key_a >= 0:
-                _add(grid, at_a, a0, a1, a2, a3)
-                _add(grid, at_az, az0, az1, az2, az3)
-            if key_b >= 0:
-                _add(grid, at_b, b0, b1, b2, b3)
-                _add(grid, at_bz, bz0, bz1, bz2, bz3)
+            if wy > 0.0:
+                za, zb, wza, wzb = z0[n, y], z1[n, y], wz0[n, y], wz1[n, y]
+                _splat_row(grid, base, hom[n, y], x0, wx0, wy, za, zb, wza, wzb)
+                _splat_row(grid, base, hom[n, y], x1, wx1, wy, za, zb, wza, wzb)
         _normalise(cells[task])  # Meng20 eq. (10), the row still in cache
 
 
