@@ -21,7 +21,6 @@ Both libraries run as the CLIs run them: OMP_WAIT_POLICY=PASSIVE, `tune_allocato
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import sys
@@ -37,6 +36,7 @@ from torch import nn  # noqa: E402
 from rtdenoise.cli.export import resolve_checkpoint  # noqa: E402
 from rtdenoise.export.deploy import to_deploy  # noqa: E402
 from rtdenoise.export.onnx_export import export_model  # noqa: E402
+from rtdenoise.export.stage_bench import node_ms_per_run  # noqa: E402
 from rtdenoise.models.checkpoint import load_checkpoint  # noqa: E402
 from rtdenoise.models.frame_loop import FrameLoop  # noqa: E402
 from rtdenoise.runtime import denoiser as denoiser_module  # noqa: E402
@@ -86,25 +86,6 @@ def profiled_denoiser(model: str | bytes, prefix: str) -> denoiser_module.Denois
         denoiser_module.ort.SessionOptions = plain
 
 
-def ort_conv_ms(profile: str) -> list[float]:
-    """Per model run (in order): ms in the convolution nodes."""
-    with open(profile) as fh:
-        events = json.load(fh)
-    runs = sorted(
-        (e for e in events if e.get("cat") == "Session" and e["name"] == "model_run"),
-        key=lambda e: e["ts"],
-    )
-    conv = [0.0] * len(runs)
-    for e in events:
-        if e.get("cat") != "Node" or e["args"].get("op_name") not in CONV_NODES:
-            continue
-        for k, r in enumerate(runs):
-            if r["ts"] <= e["ts"] <= r["ts"] + r["dur"]:
-                conv[k] += e["dur"] / 1e3
-                break
-    return conv
-
-
 def measure(spec: str, h: int, w: int, frames: int) -> dict[str, float]:
     net, _ = load_checkpoint(resolve_checkpoint(spec))
     deployed = to_deploy(net.eval(), inplace=True).requires_grad_(False)
@@ -126,7 +107,10 @@ def measure(spec: str, h: int, w: int, frames: int) -> dict[str, float]:
             den.process(seq[i % len(seq)])
             ours.append((time.perf_counter() - t0) * 1e3)
             time.sleep(PAUSE_S)
-    ours_conv = ort_conv_ms(den._session.end_profiling())
+    conv_nodes = node_ms_per_run(
+        den._session.end_profiling(), lambda _node, op: "conv" if op in CONV_NODES else None
+    )
+    ours_conv = [run.get("conv", 0.0) for run in conv_nodes]
 
     def med(values: list[float]) -> float:
         return statistics.median(values[1:])  # after the warm-up frame

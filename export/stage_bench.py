@@ -104,6 +104,28 @@ def node_stages(model: onnx.ModelProto, online: dict | None) -> dict[str, str]:
     return stages
 
 
+def node_ms_per_run(
+    profile: str, bucket: Callable[[str, str], str | None]
+) -> list[dict[str, float]]:
+    """Per session run of an ONNX Runtime profile file (in order): ms of its nodes' kernels
+    summed per `bucket(node name, op type)` (None: not counted)."""
+    with open(profile) as fh:
+        events = json.load(fh)
+    runs = sorted((e["ts"], e["ts"] + e["dur"]) for e in events if e.get("name") == "model_run")
+    per_run: list[dict[str, float]] = [defaultdict(float) for _ in runs]
+    for e in events:
+        if e.get("cat") != "Node" or not e["name"].endswith("_kernel_time"):
+            continue
+        key = bucket(e["name"][: -len("_kernel_time")], e["args"].get("op_name", ""))
+        if key is None:
+            continue
+        for r, (start, end) in enumerate(runs):
+            if start <= e["ts"] <= end:
+                per_run[r][key] += e["dur"] / 1e3
+                break
+    return per_run
+
+
 def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tuple[dict, float]:
     """(median ms per stage, median ms per frame) of ONNX Runtime over frames[1:]."""
     proto = onnx.load_from_string(onnx_bytes)
@@ -135,18 +157,8 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
         walls.append((time.perf_counter() - t0) * 1e3)
         named = dict(zip([o.name for o in session.get_outputs()], outs, strict=True))
         state = {s.name: named[s.output_name] for s in contract.state}
-    with open(session.end_profiling()) as fh:
-        events = json.load(fh)
-    runs = sorted((e["ts"], e["ts"] + e["dur"]) for e in events if e.get("name") == "model_run")
-    per_run: list[dict[str, float]] = [defaultdict(float) for _ in runs]
-    for e in events:
-        if e.get("cat") != "Node" or not e["name"].endswith("_kernel_time"):
-            continue
-        node = e["name"][: -len("_kernel_time")]
-        for r, (start, end) in enumerate(runs):
-            if start <= e["ts"] <= end:
-                per_run[r][stage_of.get(node, "other")] += e["dur"] / 1e3
-                break
+    stage = lambda node, _op: stage_of.get(node, "other")  # noqa: E731
+    per_run = node_ms_per_run(session.end_profiling(), stage)
     timed = per_run[1:] or per_run
     return {s: float(np.median([run.get(s, 0.0) for run in timed])) for s in STAGES}, float(
         np.median(walls[1:] or walls)
