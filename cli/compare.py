@@ -129,7 +129,7 @@ def compare_command(
         list[str] | None,
         typer.Option(
             help="OIDN quality to include (repeatable): high, balanced, fast; 'none' for no "
-            "OIDN. Default: high and fast. Needs the [bench] extra (pyoidn).",
+            "OIDN. Default: high and fast. Needs the bench extra (pyoidn).",
         ),
     ] = None,
     size: Annotated[
