@@ -54,6 +54,7 @@ from .errors import InputError
 from .external_data import check_external_data
 from .guard import GuardReport, GuardTotals, guard_buffers, replace_nonfinite
 from .interrupts import deferred_signals
+from .memory import share_cpu_arena
 from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities, placed
 
 ModelSource = str | os.PathLike | bytes
@@ -271,6 +272,10 @@ class Denoiser:
     providers: execution providers, e.g. ["CUDAExecutionProvider"] or ["cuda"] (default CPU).
     io_binding: keep the state in bound OrtValues between frames (default); False uses plain
         `session.run` with numpy state (the reference path, same results).
+    shared_arena: on the CPU provider alone, take intermediate tensors from one arena shared
+        by all Denoisers of the process (default; `memory.share_cpu_arena`): several models or
+        frame sizes need the memory of the largest frame, not the sum. False: an arena of the
+        session's own (ONNX Runtime's default), kept at its largest frame.
     learn, learn_every: for a model that learns while it runs (metadata `rtdenoise.online`,
         docs/contract.md): take its update step on frames 0, N, 2N, ... of each history
         (N = learn_every), none with learn=False (weights frozen). Ignored by other models.
@@ -288,6 +293,7 @@ class Denoiser:
         spinning: bool | None = None,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
+        shared_arena: bool = True,
         learn: bool = True,
         learn_every: int = 1,
         overrides: Mapping[str, float] | None = None,
@@ -324,14 +330,16 @@ class Denoiser:
         if spinning is not None:
             options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
         wanted = resolve_providers(providers)
+        names = [p if isinstance(p, str) else p[0] for p in wanted]
+        cpu_only = names == ["CPUExecutionProvider"]
+        self.shared_arena = shared_arena and cpu_only and share_cpu_arena(options)
         try:
             self._session = ort.InferenceSession(payload, options, providers=wanted)
         except Exception as exc:  # onnxruntime's pybind errors derive from Exception only
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise InputError(f"{self.source}: ONNX Runtime cannot load the model: {first}") from exc
         got = self._session.get_providers()
-        for p in wanted:
-            name = p if isinstance(p, str) else p[0]
+        for name in names:
             if name not in got:
                 raise InputError(
                     f"{self.source}: execution provider {name} failed to start (see ONNX "
