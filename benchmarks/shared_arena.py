@@ -2,12 +2,12 @@
 sessions (`Denoiser(shared_arena=True)`, the default) vs an arena of each session's own.
 
     python benchmarks/shared_arena.py --model demo:afn --model demo:wskp --model demo:nbg \
-        --size 1920x1080 --runs 2
+        --size 320x240 --size 1280x720 --size 1920x1080 --runs 2
 
 Each run is a fresh process (the shared arena is process-wide), the two kinds alternating
-(A B A B ...). In a run every model denoises the same frames in turn, A B C A B C ..., 100 ms
-apart as `denoise-bench compare` does; the table gives each model's median ms per frame after
-a warm-up round and the process's peak resident memory.
+(A B A B ...). In a run every model at every size (a Denoiser each, as `denoise-bench compare`
+has) denoises in turn, 100 ms apart; the table gives the median ms per frame after a warm-up
+round and the process's peak resident memory.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import time
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before numba's OpenMP layer starts
 
 
-def _worker(models: list[str], size: str, rounds: int, shared: bool) -> dict:
+def _worker(models: list[str], sizes: list[str], rounds: int, shared: bool) -> dict:
     import resource
 
     from rtdenoise.runtime.denoiser import Denoiser
@@ -31,16 +31,19 @@ def _worker(models: list[str], size: str, rounds: int, shared: bool) -> dict:
     from rtdenoise.runtime.synthetic import synthetic_frames
 
     tune_allocator()
-    w, h = (int(v) for v in size.split("x"))
-    dens = [Denoiser(m, shared_arena=shared) for m in models]
-    frames = synthetic_frames(sorted({b for d in dens for b in d.required_buffers}), 3, h, w)
-    ms: dict[str, list[float]] = {m: [] for m in models}
+    runs = []  # (model, size, denoiser, frames)
+    for size in sizes:
+        w, h = (int(v) for v in size.split("x"))
+        for model in models:
+            den = Denoiser(model, shared_arena=shared)
+            runs.append((model, size, den, synthetic_frames(den.required_buffers, 3, h, w)))
+    ms: dict[str, list[float]] = {f"{m} {s}": [] for m, s, _, _ in runs}
     for r in range(rounds + 1):
-        for model, den in zip(models, dens, strict=True):
+        for model, size, den, frames in runs:
             t0 = time.perf_counter()
             den.process(frames[r % len(frames)])
             if r:  # round 0 warms up
-                ms[model].append((time.perf_counter() - t0) * 1e3)
+                ms[f"{model} {size}"].append((time.perf_counter() - t0) * 1e3)
             time.sleep(0.1)
     peak_gib = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20  # KiB on Linux
     return {"ms": {m: statistics.median(t) for m, t in ms.items()}, "peak_gib": peak_gib}
@@ -57,21 +60,22 @@ def main(argv: list[str] | None = None) -> int:
     models = args.model or ["demo:afn", "demo:wskp", "demo:nbg"]
     sizes = args.size or ["1920x1080"]
     if args.worker:
-        result = _worker(models, sizes[0], args.rounds, args.worker == "shared")
+        result = _worker(models, sizes, args.rounds, args.worker == "shared")
         print(json.dumps(result))
         return 0
     print(f"# {time.strftime('%Y-%m-%d %H:%M')} UTC; {' '.join(sys.argv)}")
-    print("| size | arena | " + " | ".join(f"{m} ms" for m in models) + " | peak GiB |")
+    print("| arena | size | " + " | ".join(f"{m} ms" for m in models) + " | peak GiB |")
     print("|---|---|" + "---:|" * (len(models) + 1))
-    for size in sizes:
-        for _ in range(args.runs):
-            for kind in ("own", "shared"):
-                cmd = [sys.executable, __file__, "--worker", kind, "--size", size]
-                cmd += [f"--model={m}" for m in models] + [f"--rounds={args.rounds}"]
-                out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
-                res = json.loads(out.strip().splitlines()[-1])
-                cells = " | ".join(f"{res['ms'][m]:.1f}" for m in models)
-                print(f"| {size} | {kind} | {cells} | {res['peak_gib']:.2f} |", flush=True)
+    for _ in range(args.runs):
+        for kind in ("own", "shared"):
+            cmd = [sys.executable, __file__, "--worker", kind, f"--rounds={args.rounds}"]
+            cmd += [f"--model={m}" for m in models] + [f"--size={s}" for s in sizes]
+            out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+            res = json.loads(out.strip().splitlines()[-1])
+            for k, size in enumerate(sizes):
+                cells = " | ".join(f"{res['ms'][f'{m} {size}']:.1f}" for m in models)
+                peak = f"{res['peak_gib']:.2f}" if k == len(sizes) - 1 else ""
+                print(f"| {kind} | {size} | {cells} | {peak} |", flush=True)
     return 0
 
 

@@ -163,7 +163,8 @@ def compare_command(
         typer.Option(
             "--eager",
             help="Also time each model in PyTorch eager (its deployed form; needs its checkpoint: "
-            "demo:<family> or a .pt) on --device.",
+            "demo:<family> or a .pt) on --device. On a CPU the heavy families are slow there: "
+            "demo:crossreg at 1080p takes about a minute and 11 GiB per frame on 2 cores.",
         ),
     ] = False,
     device: Annotated[
