@@ -215,7 +215,7 @@ def compare_command(
                 label = spec + ("" if fast else " (portable)")
 
                 def remake(source=source, fast=fast) -> Denoiser:
-                    return Denoiser(source, fast_kernels=fast, threads=threads)
+                    return Denoiser(source, fast_kernels=fast, threads=threads, shared_arena=True)
 
                 contenders.append(compare.model_contender(label, remake(), remake))
             if eager:

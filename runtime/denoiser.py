@@ -273,9 +273,11 @@ class Denoiser:
     io_binding: keep the state in bound OrtValues between frames (default); False uses plain
         `session.run` with numpy state (the reference path, same results).
     shared_arena: on the CPU provider alone, take intermediate tensors from one arena shared
-        by all Denoisers of the process (default; `memory.share_cpu_arena`): several models or
-        frame sizes need the memory of the largest frame, not the sum. False: an arena of the
-        session's own (ONNX Runtime's default), kept at its largest frame.
+        by the Denoisers of the process that ask for it (`memory.share_cpu_arena`): several
+        models or frame sizes run in turn need the memory of the largest frame, not the sum.
+        It registers that arena in ONNX Runtime's environment, replacing one the host
+        registered there, so it is opt-in; `denoise-bench compare` uses it. False (default):
+        an arena of the session's own (ONNX Runtime's default), kept at its largest frame.
     learn, learn_every: for a model that learns while it runs (metadata `rtdenoise.online`,
         docs/contract.md): take its update step on frames 0, N, 2N, ... of each history
         (N = learn_every), none with learn=False (weights frozen). Ignored by other models.
@@ -293,7 +295,7 @@ class Denoiser:
         spinning: bool | None = None,
         providers: Sequence[Provider] | str | None = None,
         io_binding: bool = True,
-        shared_arena: bool = True,
+        shared_arena: bool = False,
         learn: bool = True,
         learn_every: int = 1,
         overrides: Mapping[str, float] | None = None,

@@ -38,7 +38,9 @@ def tune_allocator(threshold_bytes: int = 1 << 30) -> bool:
 def share_cpu_arena(options: ort.SessionOptions) -> bool:
     """Make the session allocate its CPU tensors from one arena shared by every session of the
     process that does the same (ONNX Runtime's environment allocator, registered here once per
-    process). Returns False, the options untouched, if ONNX Runtime refuses the registration.
+    process; ONNX Runtime 1.31 replaces one registered before without a word, so this is for
+    processes that register none of their own). Returns False, the options untouched, if ONNX
+    Runtime refuses the registration.
 
     A session's own arena keeps the peak of its frames, so each session of a process holds
     its own (at 1080p: afn 2.1 GiB, affinity 5.5, crossreg 9.5). Shared, the intermediates one

@@ -62,9 +62,20 @@ def test_bench_op_and_its_errors():
     assert res.exit_code == 2 and "--attr 'sizes=3'" in res.output
 
 
-def test_compare_models_and_oidn_at_a_tiny_size(tmp_path):
-    """Two sizes, a shipped model on both ORT paths and OIDN fast, quality on one sequence."""
+def test_compare_models_and_oidn_at_a_tiny_size(tmp_path, monkeypatch):
+    """Two sizes, a shipped model on both ORT paths and OIDN fast, quality on one sequence;
+    every session on the process's shared CPU arena."""
     pytest.importorskip("pyoidn")
+    import rtdenoise.runtime.denoiser as denoiser_module
+
+    made = []
+
+    class Recorded(denoiser_module.Denoiser):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            made.append(self)
+
+    monkeypatch.setattr(denoiser_module, "Denoiser", Recorded)
     out, plot = tmp_path / "c.json", tmp_path / "c.png"
     seq = str(sample_sequences()[0])
     args = ["compare", "demo:wskp", "--portable", "--oidn", "fast", "--size", "24x16"]
@@ -91,6 +102,7 @@ def test_compare_models_and_oidn_at_a_tiny_size(tmp_path):
     for name in names:
         assert q[name]["mean"]["psnr"] > data["noisy"]["mean"]["psnr"] + 6.0
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(made) == 4 and all(d.shared_arena for d in made)  # 2 paths x 2 sizes
 
 
 def test_compare_without_pyoidn_says_what_to_install(monkeypatch):
