@@ -1,5 +1,6 @@
 """Memory and frame time of several Denoisers in one process: one CPU arena shared by all
-sessions (`Denoiser(shared_arena=True)`, the default) vs an arena of each session's own.
+sessions (`Denoiser(shared_arena=True)`, as `denoise-bench compare` runs) vs an arena of each
+session's own (the default).
 
     python benchmarks/shared_arena.py --model demo:afn --model demo:wskp --model demo:nbg \
         --size 320x240 --size 1280x720 --size 1920x1080 --runs 2
