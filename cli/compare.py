@@ -194,6 +194,7 @@ def compare_command(
 
     from rtdenoise.runtime import compare
     from rtdenoise.runtime.denoiser import Denoiser
+    from rtdenoise.runtime.errors import InputError
     from rtdenoise.shipped import MODELS_DIR
 
     with user_errors(extra="bench"):
@@ -230,7 +231,11 @@ def compare_command(
         seqs = _sequences(list(sequence or []), needed)
         with console.status("comparing") as status:
             say = lambda msg: status.update(f"comparing: {msg}")  # noqa: E731
-            speed = compare.speed(contenders, sizes, repeats=repeats, progress=say)
+            speed, skipped = compare.speed(contenders, sizes, repeats=repeats, progress=say)
+            for left_out in skipped:
+                console.print(f"warning: {left_out['reason']}", style="yellow", markup=False)
+            if not speed:
+                raise InputError("no frame size could be timed (see the warnings above)")
             quality = compare.quality(contenders, seqs, progress=say)
             noisy = compare.noisy_quality(seqs)
         machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPUs"
@@ -241,6 +246,7 @@ def compare_command(
             "repeats": repeats,
             "sequences": [s[0] for s in seqs],
             "speed": speed,
+            "skipped_sizes": skipped,
             "quality": quality,
             "noisy": noisy,
         }

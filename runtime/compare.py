@@ -97,6 +97,45 @@ class Slot:
     per_round: int = 1
 
 
+class _Rounds:
+    """Slots under way: their prepared frames, how far each has walked its sequence (cyclically,
+    its state carried) and its times."""
+
+    def __init__(self, settle_s: float) -> None:
+        self.settle_s = settle_s
+        self.slots: list[Slot] = []
+        self.inputs: list[list[Any]] = []
+        self.walked: list[int] = []
+        self.times: dict[tuple, list[float]] = {}
+
+    def add(self, slots: Sequence[Slot]) -> range:
+        """Prepare the slots' frames (untimed) and reset their contenders; their indices."""
+        first = len(self.slots)
+        self.inputs += [[s.contender.prepare(f) for f in s.frames] for s in slots]
+        for s in slots:
+            s.contender.reset()
+            self.slots.append(s)
+            self.walked.append(0)
+            self.times[s.key] = []
+        return range(first, len(self.slots))
+
+    def play(self, indices: Sequence[int], timed: bool) -> None:
+        """One round over the slots at `indices`: `per_round` frames each if timed (kept),
+        else one (a warm-up). Sleeps `settle_s` after each frame, so that one contender's idle
+        threads do not run into the next one's time."""
+        for i in indices:
+            slot, inputs = self.slots[i], self.inputs[i]
+            for _ in range(slot.per_round if timed else 1):
+                frame = inputs[self.walked[i] % len(inputs)]
+                self.walked[i] += 1
+                t0 = time.perf_counter()
+                slot.contender.denoise(frame)
+                dt = (time.perf_counter() - t0) * 1e3
+                if timed:
+                    self.times[slot.key].append(dt)
+                time.sleep(self.settle_s)
+
+
 def time_rounds(
     slots: Sequence[Slot], rounds: int, warmup: int = 1, settle_s: float = SETTLE_S
 ) -> dict[tuple, list[float]]:
@@ -104,23 +143,11 @@ def time_rounds(
     frames in turn, A B C A B C ...): `warmup` rounds first (not kept), then `rounds`. Each
     slot walks its sequence cyclically, its state carried. Sleeps `settle_s` after each frame,
     so that one contender's idle threads do not run into the next one's time."""
-    prepared = [[s.contender.prepare(f) for f in s.frames] for s in slots]
-    for s in slots:
-        s.contender.reset()
-    times: dict[tuple, list[float]] = {s.key: [] for s in slots}
-    walked = [0] * len(slots)
+    under_way = _Rounds(settle_s)
+    every = under_way.add(slots)
     for r in range(warmup + rounds):
-        for i, (slot, inputs) in enumerate(zip(slots, prepared, strict=True)):
-            for _ in range(slot.per_round if r >= warmup else 1):
-                frame = inputs[walked[i] % len(inputs)]
-                walked[i] += 1
-                t0 = time.perf_counter()
-                slot.contender.denoise(frame)
-                dt = (time.perf_counter() - t0) * 1e3
-                if r >= warmup:
-                    times[slot.key].append(dt)
-                time.sleep(settle_s)
-    return times
+        under_way.play(every, timed=r >= warmup)
+    return under_way.times
 
 
 def time_interleaved(
@@ -158,30 +185,118 @@ def frames_per_round(h: int, w: int) -> int:
     return min(MORE_FRAMES_UP_TO, max(1, round(REFERENCE_PIXELS / max(h * w, 1))))
 
 
+GIB = 1 << 30
+
+
+def _proc_kib(path: str, field: str) -> int | None:
+    """A `field:  N kB` line of a /proc file, in bytes (None where there is none: not Linux)."""
+    try:
+        with open(path) as f:
+            for line in f:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+class MemoryWatch:
+    """Whether a larger frame size is likely to fit in memory before its first frame runs.
+
+    Every contender keeps a state (and its library its buffers) at every size, so the process
+    grows with each size it warms up; past what the machine has, the kernel kills it with no
+    word. The growth of the process's peak memory (VmHWM) while the last size warmed up,
+    scaled by pixels, predicts the next size's; the first size warmed is not used, as it also
+    pays the one-off costs (compiled kernels, thread pools, caches). Linux only (/proc); where
+    the readings are missing, every size is let through.
+    """
+
+    HEADROOM = 0.9  # of the memory available
+
+    def __init__(
+        self,
+        peak: Callable[[], int | None] = lambda: _proc_kib("/proc/self/status", "VmHWM"),
+        current: Callable[[], int | None] = lambda: _proc_kib("/proc/self/status", "VmRSS"),
+        available: Callable[[], int | None] = lambda: _proc_kib("/proc/meminfo", "MemAvailable"),
+    ) -> None:
+        self.peak, self.current, self.available = peak, current, available
+        self.warmed: list[tuple[str, int, int | None]] = []  # (label, pixels, peak after)
+
+    def done(self, label: str, pixels: int) -> None:
+        """`label` (pixels) has warmed up."""
+        self.warmed.append((label, pixels, self.peak()))
+
+    def refuse(self, label: str, pixels: int) -> str | None:
+        """Why `label` (pixels) should not be timed, or None."""
+        if len(self.warmed) < 2:
+            return None
+        (_, _, before), (last, last_pixels, after) = self.warmed[-2:]
+        peak, current, available = self.peak(), self.current(), self.available()
+        if None in (before, after, peak, current, available):
+            return None
+        grown = max(after - before, 0)
+        need = grown * pixels / last_pixels
+        if (peak - current) + need <= self.HEADROOM * available:  # back to the peak, then up
+            return None
+        return (
+            f"{label} not timed: warming up {last} raised this process's peak memory by "
+            f"{grown / GIB:.1f} GiB, so {label} would need about {need / GIB:.1f} GiB more, "
+            f"and {available / GIB:.1f} GiB are available; time fewer models or sizes"
+        )
+
+
 def speed(
     contenders: Sequence[Contender],
     sizes: Iterable[tuple[int, int]],
     repeats: int = 5,
     frames: int = 4,
     progress: Callable[[str], None] = lambda _msg: None,
-) -> list[dict[str, Any]]:
-    """Per size (H, W): every contender's times and their summary. All sizes are timed in the
-    same interleaved rounds (`repeats` of them, `frames_per_round` frames per size), each
-    contender at each size with a state of its own (`Contender.fresh`): a machine whose speed
-    drifts during the run slows every size alike, so times per pixel compare across sizes."""
+    memory: MemoryWatch | None = None,
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Per size (H, W): every contender's times and their summary; and the sizes left out,
+    with why ([{"size", "reason"}]). All sizes are timed in the same interleaved rounds
+    (`repeats` of them, `frames_per_round` frames per size), each contender at each size with
+    a state of its own (`Contender.fresh`): a machine whose speed drifts during the run slows
+    every size alike, so times per pixel compare across sizes. The sizes warm up one after
+    another, smallest first; one that `memory` (default: a `MemoryWatch`) says would not fit
+    is left out, and every larger one with it."""
     sizes = list(sizes)
+    memory = MemoryWatch() if memory is None else memory
     buffers = sorted({b for c in contenders for b in c.buffers})
-    slots = []
-    for k, (h, w) in enumerate(sizes):
-        seq = synthetic_frames(buffers, frames, h, w)
-        for c in contenders:
-            own = c if k == 0 or c.fresh is None else c.fresh()
-            slots.append(Slot((h, w, c.name), own, seq, frames_per_round(h, w)))
+    under_way = _Rounds(SETTLE_S)
+    indices: dict[int, range] = {}
+    skipped: list[dict[str, Any]] = []
     progress(", ".join(f"{w}x{h}" for h, w in sizes))
-    times = time_rounds(slots, repeats)
+    for k in sorted(range(len(sizes)), key=lambda k: sizes[k][0] * sizes[k][1]):
+        h, w = sizes[k]
+        label = f"{w}x{h}"
+        why = (
+            memory.refuse(label, h * w)
+            if not skipped
+            else f"{label} not timed: a smaller size was not"
+        )
+        if why:
+            skipped.append({"size": [h, w], "reason": why})
+            continue
+        seq = synthetic_frames(buffers, frames, h, w)
+        slots = [
+            Slot((h, w, c.name), c if k == 0 or c.fresh is None else c.fresh(), seq,
+                 frames_per_round(h, w))
+            for c in contenders
+        ]  # fmt: skip
+        indices[k] = under_way.add(slots)
+        progress(f"warming up {label}")
+        under_way.play(indices[k], timed=False)
+        memory.done(label, h * w)
+    order = [i for k in range(len(sizes)) if k in indices for i in indices[k]]
+    for r in range(repeats):
+        progress(f"round {r + 1} of {repeats}")
+        under_way.play(order, timed=True)
     rows = []
-    for h, w in sizes:
-        size_times = {c.name: times[(h, w, c.name)] for c in contenders}
+    for k, (h, w) in enumerate(sizes):
+        if k not in indices:
+            continue
+        size_times = {c.name: under_way.times[(h, w, c.name)] for c in contenders}
         rows.append(
             {
                 "size": [h, w],
@@ -190,7 +305,7 @@ def speed(
                 "summary": {n: summarize_times(t, h * w) for n, t in size_times.items()},
             }
         )
-    return rows
+    return rows, skipped
 
 
 def quality(
