@@ -187,7 +187,9 @@ def compare_command(
 
     Speed: interleaved rounds (A B C A B C ..., every size in every round) after a warm-up
     round, median and min-max of REPEATS frames per size (more for small sizes), and ns per
-    pixel; models carry their state (one per size), OIDN is per frame.
+    pixel; models carry their state (one per size), OIDN is per frame. The sizes warm up
+    smallest first; one that would not fit in memory (from the growth of the previous size)
+    is left out, with a warning, before its first frame.
     Quality: PSNR (tau-mapped, pooled), SSIM and TRMAE on sequences with references.
     """
     import platform
