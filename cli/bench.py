@@ -18,6 +18,7 @@ from .common import (
     one_line_warnings,
     parse_size,
     passive_openmp_threads,
+    progress_status,
     user_errors,
 )
 from .compare import compare_command
@@ -82,14 +83,8 @@ def bench_model(
             net = build_model(model)
         pad = net.pad_multiple
         h, w = -(-h // pad) * pad, -(-w // pad) * pad
-        with console.status("benchmarking") as status:
-            result = benchmark_model(
-                net,
-                (h, w),
-                repeats=repeats,
-                threads=threads,
-                progress=lambda msg: status.update(f"benchmarking: {msg}"),
-            )
+        with progress_status(console, "benchmarking") as say:
+            result = benchmark_model(net, (h, w), repeats=repeats, threads=threads, progress=say)
 
     table = Table(title=f"{net.family} at {w}x{h}, median ms per frame ({repeats} frames)")
     table.add_column("stage")
@@ -147,19 +142,14 @@ def bench_stages(
         net, _meta = load_checkpoint(resolve_checkpoint(model))
         pad = net.pad_multiple
         h, w = -(-h // pad) * pad, -(-w // pad) * pad
-        with console.status("benchmarking") as status:
+        with progress_status(console, "benchmarking") as say:
             if model.startswith("demo:"):
                 onnx_bytes = demo_model(model.split(":", 1)[1], ".onnx").read_bytes()
             else:
-                status.update("exporting")
+                say("exporting")
                 onnx_bytes = export_model(net).SerializeToString()
             result = benchmark_stages(
-                net,
-                onnx_bytes,
-                (h, w),
-                repeats=repeats,
-                threads=threads,
-                progress=lambda msg: status.update(f"benchmarking: {msg}"),
+                net, onnx_bytes, (h, w), repeats=repeats, threads=threads, progress=say
             )
     table = Table(title=f"{net.family} at {w}x{h}, median ms per frame ({repeats} frames)")
     table.add_column("stage")
@@ -203,7 +193,8 @@ def bench_one_op(
             if not sep or name not in attrs or not value.lstrip("-").isdigit():
                 fail(f"--attr {item!r}: expected NAME=INT with NAME in {sorted(attrs)}")
             attrs[name] = int(value)
-        with console.status(f"benchmarking {op}"):
+        with progress_status(console, "benchmarking") as say:
+            say(op)
             result = bench_op(
                 op, (1, channels, h, w), repeats=repeats, attrs=attrs, threads=threads or 0
             )

@@ -73,6 +73,18 @@ def warn(message: str) -> None:
     print(f"warning: {one_line(message)}", file=sys.stderr, flush=True)
 
 
+@contextmanager
+def progress_status(console: Any, label: str) -> Iterator[Any]:
+    """`with progress_status(console, "comparing") as say: say("720p")`: rich's status line on
+    a terminal; elsewhere (a log, a pipe), where rich shows nothing, each message as a plain
+    line on stderr (`comparing: 720p`), so a long run is not silent."""
+    if console.is_terminal:
+        with console.status(label) as status:
+            yield lambda message: status.update(f"{label}: {message}")
+    else:
+        yield lambda message: print(f"{label}: {message}", file=sys.stderr, flush=True)
+
+
 def missing_extra_message(exc: ModuleNotFoundError, extra: str) -> str | None:
     """`no module named 'torch': install the export extra: ...` when `exc` is a module that
     only an extra installs; None for any other missing module (a broken install)."""

@@ -10,7 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .common import parse_size, user_errors, write_json
+from .common import parse_size, progress_status, user_errors, warn, write_json
 
 console = Console()
 DEFAULT_SIZES = ("320x240", "1280x720", "1920x1080")
@@ -231,11 +231,10 @@ def compare_command(
             contenders += [oidn_torch_contender(q, device) for q in qualities]
         needed = sorted({b for c in contenders for b in c.buffers})
         seqs = _sequences(list(sequence or []), needed)
-        with console.status("comparing") as status:
-            say = lambda msg: status.update(f"comparing: {msg}")  # noqa: E731
+        with progress_status(console, "comparing") as say:
             speed, skipped = compare.speed(contenders, sizes, repeats=repeats, progress=say)
             for left_out in skipped:
-                console.print(f"warning: {left_out['reason']}", style="yellow", markup=False)
+                warn(left_out["reason"])
             if not speed:
                 raise InputError("no frame size could be timed (see the warnings above)")
             quality = compare.quality(contenders, seqs, progress=say)

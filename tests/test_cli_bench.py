@@ -103,6 +103,9 @@ def test_compare_models_and_oidn_at_a_tiny_size(tmp_path, monkeypatch):
         assert q[name]["mean"]["psnr"] > data["noisy"]["mean"]["psnr"] + 6.0
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(made) == 4 and all(d.shared_arena for d in made)  # 2 paths x 2 sizes
+    # not a terminal: the progress as plain lines on stderr, not lost with rich's status line
+    for line in ("comparing: warming up 24x16", "comparing: round 2 of 2", "comparing: quality"):
+        assert line in res.stderr
 
 
 def test_compare_without_pyoidn_says_what_to_install(monkeypatch):
