@@ -21,27 +21,20 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper, shape_inference
 
+from rtdenoise.export.conv_widths import Graph
+
 
 def split_concat_convs(
     model: onnx.ModelProto, only: set[str] | None = None
 ) -> tuple[onnx.ModelProto, list[str]]:
-    """The model with every Conv whose input is a channel Concat (used by it alone) replaced by
-    one Conv per Concat input, summed (only the convs named in `only`, if given); and the
-    names of the convs split."""
+    """The model with every plain Conv (group 1, weights of its own) whose input is a channel
+    Concat (used by it alone) replaced by one Conv per Concat input, summed (only the convs
+    named in `only`, if given); and the names of the convs split."""
     model = shape_inference.infer_shapes(model)
     graph = model.graph
     infos = {v.name: v for v in graph.value_info}
-    channels = {
-        v.name: v.type.tensor_type.shape.dim[1].dim_value
-        for v in [*graph.value_info, *graph.input]
-        if len(v.type.tensor_type.shape.dim) == 4
-    }
-    inits = {i.name: i for i in graph.initializer}
+    known = Graph(model)  # initializers, their uses, inferred channel counts
     producer = {o: n for n in graph.node for o in n.output}
-    uses: dict[str, int] = {}
-    for n in graph.node:
-        for i in n.input:
-            uses[i] = uses.get(i, 0) + 1
     nodes, split, dropped = [], [], set()
     for node in graph.node:
         cat = producer.get(node.input[0]) if node.op_type == "Conv" else None
@@ -51,17 +44,18 @@ def split_concat_convs(
             continue
         parts = list(cat.input)
         if (
-            uses[node.input[0]] != 1
-            or not all(channels.get(p) for p in parts)
+            not known.plain_conv(node)
+            or known.uses[node.input[0]] != 1
+            or not all(known.channels.get(p) for p in parts)
             or (only is not None and node.name not in only)
         ):
             nodes.append(node)
             continue
-        weight = numpy_helper.to_array(inits[node.input[1]])
+        weight = numpy_helper.to_array(known.inits[node.input[1]])
         attrs = {a.name: helper.get_attribute_value(a) for a in node.attribute}
         outputs, start = [], 0
         for k, part in enumerate(parts):
-            width = channels[part]
+            width = known.channels[part]
             w_name = f"{node.name}_w{k}"
             part_weight = np.ascontiguousarray(weight[:, start : start + width])
             graph.initializer.append(numpy_helper.from_array(part_weight, w_name))
