@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rtdenoise.runtime.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
 from rtdenoise.shipped import sample_sequences
 
 BIN = Path(sys.executable).parent

@@ -41,7 +41,7 @@ from rtdenoise.models.checkpoint import load_checkpoint  # noqa: E402
 from rtdenoise.models.frame_loop import FrameLoop  # noqa: E402
 from rtdenoise.runtime import denoiser as denoiser_module  # noqa: E402
 from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
-from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: E402
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
 
 CONV_NODES = ("Conv", "FusedConv", "MatMul", "ConvTranspose")
 PAUSE_S = 0.1

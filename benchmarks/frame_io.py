@@ -44,7 +44,7 @@ LAUNCH = (
 def make_sequence(folder: Path, frames: int, height: int, width: int, half: bool) -> None:
     """Canonical frames (every canonical buffer plus unused layers), noisy but compressible:
     smooth gradients plus per-pixel noise, like a low-sample render."""
-    from rtdenoise.runtime.exr import write_exr
+    from rtdenoise.runtime.sequences.exr import write_exr
 
     rng = np.random.default_rng(0)
     y, x = np.mgrid[0:height, 0:width].astype(np.float32)

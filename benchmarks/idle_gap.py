@@ -22,7 +22,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before numba's OpenMP lay
 from rtdenoise.runtime.denoiser import Denoiser  # noqa: E402
 from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
 from rtdenoise.runtime.placement import release_workers  # noqa: E402
-from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: E402
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

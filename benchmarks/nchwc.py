@@ -31,9 +31,14 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import onnx  # noqa: E402
 import onnxruntime as ort  # noqa: E402
 
-from rtdenoise.runtime import fastops  # noqa: E402
-from rtdenoise.runtime.denoiser import ALLOW_SPINNING, Denoiser, resolve_model  # noqa: E402
-from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: E402
+from rtdenoise.runtime import (  # noqa: E402
+    Denoiser,
+    bridge,  # noqa: E402
+    resolve_model,
+)
+from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
+from rtdenoise.runtime.session import ALLOW_SPINNING  # noqa: E402
 
 VARIANTS = {
     "default": ({}, ort.GraphOptimizationLevel.ORT_ENABLE_ALL),
@@ -52,7 +57,7 @@ def options(level, profile: str | None = None, optimized: str | None = None):
         so.profile_file_prefix = profile
     if optimized:
         so.optimized_model_filepath = optimized
-    fastops.register_fast_kernels(so)
+    bridge.register_fast_kernels(so)
     return so
 
 
@@ -160,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         help="also time the model with conv widths zero-padded to this multiple",
     )
     args = ap.parse_args(argv)
-    fastops.tune_allocator()
+    tune_allocator()
     w, h = (int(v) for v in args.size.split("x"))
     print(f"# {time.strftime('%Y-%m-%d %H:%M')} UTC, load {os.getloadavg()}")
     print(f"# {' '.join(sys.argv)}")

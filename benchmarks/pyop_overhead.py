@@ -6,7 +6,7 @@ layers, interleaved round by round (A B C D E A B C D E ...), medians over round
 
 - `driver`: the numba driver on preallocated outputs (the computation alone);
 - `kernel`: `FastKernel(*inputs)` (spec checks, output allocation, the driver);
-- `hook`:   `fastops._array_hook` (what the C++ bridge calls: attribute casting, the kernel,
+- `hook`:   `extensions._array_hook` (what the C++ bridge calls: attribute casting, the kernel,
             the result tuple);
 - `ort`:    a one-node ONNX Runtime session with the fast kernels (the whole PyOp path:
             the C++ bridge copies every input into a new numpy array, takes the GIL, calls the
@@ -36,10 +36,15 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np  # noqa: E402
 import onnxruntime as ort  # noqa: E402
 
-from rtdenoise.runtime import fastops  # noqa: E402
-from rtdenoise.runtime.denoiser import Denoiser, resolve_model  # noqa: E402
+from rtdenoise.runtime import (  # noqa: E402
+    Denoiser,
+    bridge,  # noqa: E402
+    resolve_model,
+)
+from rtdenoise.runtime.bridge import extensions  # noqa: E402
 from rtdenoise.runtime.kernels import KERNELS  # noqa: E402
-from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: E402
+from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
 
 LAYERS = ("driver", "kernel", "hook", "ort", "copies")
 
@@ -51,12 +56,12 @@ def record_calls(model: str, h: int, w: int) -> list[tuple[str, int, list, dict]
 
     def recorder(k_id, feed, attributes):
         if recording[0]:
-            name = fastops._ortx_ocos.Opdef._odlist[k_id].op_type.split("::")[-1]
+            name = extensions._ortx_ocos.Opdef._odlist[k_id].op_type.split("::")[-1]
             calls.append((name, k_id, [np.array(a) for a in feed], dict(attributes)))
-        return fastops._array_hook(k_id, feed, attributes)
+        return extensions._array_hook(k_id, feed, attributes)
 
     den = Denoiser(model)
-    fastops.PyCustomOpDef.install_hooker(recorder)
+    extensions.PyCustomOpDef.install_hooker(recorder)
     try:
         frames = synthetic_frames(den.required_buffers, 3, h, w)
         den.process(frames[0])
@@ -64,7 +69,7 @@ def record_calls(model: str, h: int, w: int) -> list[tuple[str, int, list, dict]
         recording[0] = True
         den.process(frames[2])
     finally:
-        fastops.PyCustomOpDef.install_hooker(fastops._array_hook)
+        extensions.PyCustomOpDef.install_hooker(extensions._array_hook)
     return calls
 
 
@@ -75,7 +80,7 @@ def profile_nodes(model: str, h: int, w: int, frames: int = 3) -> dict[str, floa
     so.add_session_config_entry("session.intra_op.allow_spinning", "0")
     so.enable_profiling = True
     so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "prof")
-    fastops.register_fast_kernels(so)
+    bridge.register_fast_kernels(so)
     den._session = ort.InferenceSession(str(resolve_model(model)), so)
     den._binding = den._session.io_binding()
     seq = synthetic_frames(den.required_buffers, frames + 1, h, w)
@@ -105,7 +110,7 @@ def layer_calls(name: str, k_id: int, inputs: list, attrs: dict) -> dict:
     model = single_op_model(name, [list(a.shape) for a in inputs], ints).SerializeToString()
     so = ort.SessionOptions()
     so.add_session_config_entry("session.intra_op.allow_spinning", "0")
-    fastops.register_fast_kernels(so)
+    bridge.register_fast_kernels(so)
     sess = ort.InferenceSession(model, so)
     feed = dict(zip(kernel.spec.input_names, inputs, strict=True))
 
@@ -118,7 +123,7 @@ def layer_calls(name: str, k_id: int, inputs: list, attrs: dict) -> dict:
     return {
         "driver": lambda: kernel.driver(*inputs, *pre, **ints),
         "kernel": lambda: kernel(*inputs, **ints),
-        "hook": lambda: fastops._array_hook(k_id, list(inputs), dict(attrs)),
+        "hook": lambda: extensions._array_hook(k_id, list(inputs), dict(attrs)),
         "ort": lambda: sess.run(None, feed),
         "copies": copies,
     }
@@ -130,8 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", default="1280x720")
     ap.add_argument("--rounds", type=int, default=7)
     args = ap.parse_args(argv)
-    fastops.tune_allocator()
-    fastops.install_array_hook()
+    tune_allocator()
+    extensions.install_array_hook()
     w, h = (int(v) for v in args.size.split("x"))
     print(f"# {time.strftime('%Y-%m-%d %H:%M')} UTC, load {os.getloadavg()}")
     print(f"# {' '.join(sys.argv)}")

@@ -31,9 +31,12 @@ WORKER = r"""
 import json, os, sys, time
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numpy as np
-from rtdenoise.runtime.denoiser import Denoiser
+from rtdenoise.runtime import Denoiser
 from rtdenoise.runtime.memory import tune_allocator
-from rtdenoise.runtime.synthetic import synthetic_frames
+try:
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+except ImportError:  # a revision before runtime/ had its sequence wing
+    from rtdenoise.runtime.synthetic import synthetic_frames
 tune_allocator()
 den = frames = None
 for line in sys.stdin:

@@ -29,7 +29,7 @@ def _worker(models: list[str], sizes: list[str], rounds: int, shared: bool) -> d
 
     from rtdenoise.runtime.denoiser import Denoiser
     from rtdenoise.runtime.memory import tune_allocator
-    from rtdenoise.runtime.synthetic import synthetic_frames
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
 
     tune_allocator()
     runs = []  # (model, size, denoiser, frames)

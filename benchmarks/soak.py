@@ -48,7 +48,7 @@ def _upscale(a: np.ndarray, fy: int, fx: int, size: tuple[int, int]) -> np.ndarr
 
 def shot(size: tuple[int, int]) -> tuple[list[dict[str, np.ndarray]], list[np.ndarray]]:
     """The committed seq_000 (buffers, references), nearest-upscaled to `size` (H, W)."""
-    from rtdenoise.runtime.sequence import find_frames, read_frame, read_reference
+    from rtdenoise.runtime.sequences.frames import find_frames, read_frame, read_reference
     from rtdenoise.shipped import sample_sequences
 
     seq = sample_sequences()[0]

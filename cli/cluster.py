@@ -19,7 +19,7 @@ from rich.progress import (
 )
 
 from rtdenoise.cli.common import EXIT_BAD_INPUT, EXIT_FAILURE
-from rtdenoise.runtime.cluster import DEFAULT_RETRIES, TaskOutcome
+from rtdenoise.runtime.sequences.cluster import DEFAULT_RETRIES, TaskOutcome
 
 ClusterOption = Annotated[
     bool,

@@ -18,8 +18,8 @@ from typing import Annotated, Any, NoReturn
 import typer
 
 from rtdenoise import __version__
-from rtdenoise.runtime.atomic import write_text_atomic
 from rtdenoise.runtime.errors import InputError
+from rtdenoise.runtime.sequences.atomic import write_text_atomic
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILURE = 1

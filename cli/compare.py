@@ -45,7 +45,7 @@ def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple[str, list[
     frames hold `buffers` (a per-sample model's `samples`: S = 1 from the pixel means when the
     files have no sample layers)."""
     from rtdenoise.runtime.errors import InputError
-    from rtdenoise.runtime.sequence import (
+    from rtdenoise.runtime.sequences.frames import (
         find_frames,
         match_references,
         read_frame,
@@ -93,7 +93,7 @@ def _plot(path: Path, result: dict[str, Any], size: list[int]) -> None:
         from rtdenoise.runtime.errors import InputError
 
         raise InputError("--plot needs matplotlib: pip install 'rtdenoise[bench]'") from None
-    from rtdenoise.runtime.atomic import atomic_path
+    from rtdenoise.runtime.sequences.atomic import atomic_path
 
     row = next(r for r in result["speed"] if r["size"] == size)
     fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=120)
@@ -194,8 +194,8 @@ def compare_command(
     """
     import platform
 
-    from rtdenoise.runtime import compare
     from rtdenoise.runtime.denoiser import Denoiser
+    from rtdenoise.runtime.sequences import compare
     from rtdenoise.shipped import MODELS_DIR
 
     with user_errors(extra="bench"):

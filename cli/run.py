@@ -33,14 +33,20 @@ from rtdenoise.cli.common import (
     warn,
     write_json,
 )
-from rtdenoise.runtime.atomic import check_writable
-from rtdenoise.runtime.backend import Backend, load_backend
-from rtdenoise.runtime.cluster import BackendSpec, TaskOutcome, run_shots
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.runtime.layouts import LAYOUTS, Layout, get_layout, parse_overrides
 from rtdenoise.runtime.memory import tune_allocator
-from rtdenoise.runtime.run import METRIC_KEYS, Job, check_out_dir, online_summary, run_sequence
-from rtdenoise.runtime.sequence import find_frames, group_shots
+from rtdenoise.runtime.sequences.atomic import check_writable
+from rtdenoise.runtime.sequences.backend import Backend, load_backend
+from rtdenoise.runtime.sequences.cluster import BackendSpec, TaskOutcome, run_shots
+from rtdenoise.runtime.sequences.frames import find_frames, group_shots
+from rtdenoise.runtime.sequences.layouts import LAYOUTS, Layout, get_layout, parse_overrides
+from rtdenoise.runtime.sequences.run import (
+    METRIC_KEYS,
+    Job,
+    check_out_dir,
+    online_summary,
+    run_sequence,
+)
 
 # The model used when --model is not given: the shipped AFN demo (Lee24).
 DEFAULT_MODEL = "demo:afn"
@@ -478,11 +484,11 @@ def run_cluster(
 ) -> int:
     """`--cluster`: one Ray task per shot, one progress bar, a table; returns the exit code."""
     if spec.model.strip().lower() != "none":
-        from rtdenoise.runtime.denoiser import resolve_model
+        from rtdenoise.runtime import resolve_model
 
         resolve_model(spec.model)  # a typo fails once here, not once per shot
     with user_errors(extra="cluster"):
-        from rtdenoise.runtime.cluster import connect
+        from rtdenoise.runtime.sequences.cluster import connect
 
         started = connect(address)
     try:

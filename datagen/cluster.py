@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from ..runtime.cluster import DEFAULT_RETRIES, TaskContext, TaskOutcome, run_tasks
+from ..runtime.sequences.cluster import DEFAULT_RETRIES, TaskContext, TaskOutcome, run_tasks
 from .render import RenderConfig, derive_seed, render_sequence
 
 _VARIANT_SET: dict[str, str] = {}  # requested -> used, once per worker process

@@ -6,8 +6,8 @@ One folder per sequence:
   `motion.X/Y` (conventions in `features.py`);
 - with `RenderConfig.samples` = S >= 1: S independent 1-spp samples per pixel, each a
   miniature canonical frame `sample<i>.R/G/B` (radiance), `sample<i>.albedo.R/G/B`,
-  `sample<i>.normal.X/Y/Z`, `sample<i>.depth.Z` (runtime/samples.py), its features taken at
-  the sample's own jittered position by the same ray as its radiance (`aov` integrator
+  `sample<i>.normal.X/Y/Z`, `sample<i>.depth.Z` (runtime/sequences/samples.py), its features
+  taken at the sample's own jittered position by the same ray as its radiance (`aov` integrator
   wrapping `path`); then `R,G,B` is the mean of the S samples and `colorB` an independent
   S-spp estimate;
 - `ref_NNNN.exr`: `R,G,B` high-spp reference of the same frame;
@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime.atomic import write_text_atomic
-from ..runtime.exr import write_exr
-from ..runtime.samples import DEFAULT_SAMPLE_FEATURES, sample_channels
+from ..runtime.sequences.atomic import write_text_atomic
+from ..runtime.sequences.exr import write_exr
+from ..runtime.sequences.samples import DEFAULT_SAMPLE_FEATURES, sample_channels
 from .camera import Camera, orbit_path
 from .features import BACKGROUND_ALBEDO, BACKGROUND_DEPTH, canonical_features, override_albedo
 from .scene import ID_SCALE, build_scene, conductor_f0, random_scene, shape_materials
@@ -152,8 +152,8 @@ def _rgb(prefix: str, img: np.ndarray) -> dict[str, np.ndarray]:
 def _sample_layers(
     mi, scenes, integrators, alb_table, cam: Camera, seeds: list[int], exposure: float, limit
 ) -> tuple[dict[str, np.ndarray], np.ndarray, int]:
-    """Per-sample layers of one frame (runtime/samples.py names), the mean radiance and the
-    count of replaced non-finite values. Sample i: one 1-spp pass of `aov` wrapping `path`
+    """Per-sample layers of one frame (runtime/sequences/samples.py names), the mean radiance
+    and the count of replaced non-finite values. Sample i: one 1-spp pass of `aov` wrapping `path`
     (radiance and features from the same ray) and an id pass with the same seed (same ray)."""
     mi_scene, id_scene = scenes
     aov_path, aov_id = integrators

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..runtime.exr import read_exr
+from ..runtime.sequences.exr import read_exr
 
 DEPTH_TOLERANCE = 0.1  # relative depth difference still counted as the same surface
 

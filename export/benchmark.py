@@ -26,7 +26,7 @@ from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.models.ops import TorchOp, observe_calls
 from rtdenoise.runtime.contract import SAMPLES
 from rtdenoise.runtime.denoiser import Denoiser
-from rtdenoise.runtime.samples import sample_features_of
+from rtdenoise.runtime.sequences.samples import sample_features_of
 
 from .deploy import to_deploy
 from .onnx_export import export_model

@@ -19,7 +19,7 @@ import torch
 from rtdenoise.models.checkpoint import load_checkpoint
 from rtdenoise.models.device import torch_device
 from rtdenoise.models.frame_loop import FrameLoop
-from rtdenoise.runtime.compare import OIDN_BUFFERS, Contender, Frame, oidn_contender
+from rtdenoise.runtime.sequences.compare import OIDN_BUFFERS, Contender, Frame, oidn_contender
 
 from .deploy import to_deploy
 

@@ -19,10 +19,10 @@ import torch
 from torch import nn
 from torch.export import Dim
 
-from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel
+from rtdenoise.models.base import BUFFER_CHANNELS, DenoiserModel, option_buffer
 from rtdenoise.models.ops import exporting
 from rtdenoise.runtime.contract import SAMPLES, Declaration
-from rtdenoise.runtime.samples import feature_channels, sample_features_of
+from rtdenoise.runtime.sequences.samples import feature_channels, sample_features_of
 
 from . import ops as onnx_ops
 from .conv_widths import pad_conv_inputs, pad_conv_widths
@@ -147,12 +147,12 @@ def expose_options(proto: onnx.ModelProto, declared: Declaration) -> None:
     of the export) the overridable initializer `option.<name>`: renamed, and a graph input."""
     graph = proto.graph
     for option in declared.options:
-        old = f"model.option_{option.name}"
+        old = f"model.{option_buffer(option.name)}"
         found = [t for t in graph.initializer if t.name == old]
         if not found:
             raise ValueError(
                 f"run-time option {option.name!r}: the export has no initializer {old!r} (the "
-                f"model must pass its buffer option_{option.name} to the graph unchanged)"
+                f"model must pass its buffer {option_buffer(option.name)} to the graph unchanged)"
             )
         found[0].name = option.input_name
         for node in graph.node:

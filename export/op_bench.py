@@ -44,7 +44,7 @@ def bench_op(
     attrs default to the op's `default_attrs`; `inputs` (optional) replaces the spec's
     example inputs (e.g. the tensors a model really passes); threads sets ORT intra-op threads,
     numba's and torch's (0 = library default); tune_allocator first applies the process-wide
-    runtime.fastops.tune_allocator(). Returns {"op", "shape", "attrs", "ms": {form: ms},
+    runtime.memory.tune_allocator(). Returns {"op", "shape", "attrs", "ms": {form: ms},
     "max_abs_diff": {form: vs torch}}.
     """
     import numba
@@ -52,14 +52,15 @@ def bench_op(
     import torch
 
     from rtdenoise.models.ops import TORCH_OPS
-    from rtdenoise.runtime import fastops
-    from rtdenoise.runtime.denoiser import ALLOW_SPINNING
+    from rtdenoise.runtime import bridge
     from rtdenoise.runtime.kernels import KERNELS
+    from rtdenoise.runtime.memory import tune_allocator
+    from rtdenoise.runtime.session import ALLOW_SPINNING
 
     from .ops import single_op_model
 
     if tune_allocator:
-        fastops.tune_allocator()
+        tune_allocator()
     spec = get_spec(op_name)
     attrs = dict(spec.default_attrs if attrs is None else attrs)
     if inputs is None:
@@ -71,7 +72,7 @@ def bench_op(
         so = ort.SessionOptions()
         so.intra_op_num_threads = threads
         if fast:
-            fastops.register_fast_kernels(so)
+            bridge.register_fast_kernels(so)
             so.add_session_config_entry(ALLOW_SPINNING, "0")  # as Denoiser runs it
         return ort.InferenceSession(model, so, providers=["CPUExecutionProvider"])
 

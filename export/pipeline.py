@@ -11,7 +11,7 @@ import onnx
 
 from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.checkpoint import load_checkpoint
-from rtdenoise.runtime.atomic import write_bytes_atomic
+from rtdenoise.runtime.sequences.atomic import write_bytes_atomic
 
 from .deploy import to_deploy
 from .onnx_export import export_model
@@ -40,8 +40,8 @@ def validation_frames(
 ) -> tuple[list[dict[str, np.ndarray]], str]:
     """Frames to validate on: a bundled rendered sequence when one is shipped, else synthetic."""
     from rtdenoise.runtime.contract import SAMPLES
-    from rtdenoise.runtime.samples import sample_features_of
-    from rtdenoise.runtime.sequence import find_frames, read_frame
+    from rtdenoise.runtime.sequences.frames import find_frames, read_frame
+    from rtdenoise.runtime.sequences.samples import sample_features_of
     from rtdenoise.shipped import sample_sequences
 
     pad = model.pad_multiple

@@ -36,9 +36,9 @@ import torch
 from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.models.profiling import timed_stages
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge
 from rtdenoise.runtime.contract import RESET, contract_from_session
-from rtdenoise.runtime.denoiser import ALLOW_SPINNING, kernel_threads
+from rtdenoise.runtime.session import ALLOW_SPINNING, kernel_thread_count
 
 from .validate import synthetic_frames
 
@@ -135,7 +135,7 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
     if threads:
         so.intra_op_num_threads = threads
     if fast:  # as Denoiser runs it: idle ORT workers sleep while a kernel runs
-        fastops.register_fast_kernels(so)
+        bridge.register_fast_kernels(so)
         so.add_session_config_entry(ALLOW_SPINNING, "0")
     so.enable_profiling = True
     so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "ort")
@@ -152,7 +152,7 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
         feed[RESET] = np.array(1.0 if k == 0 else 0.0, np.float32)
         feed.update({s.input_name: state[s.name] for s in contract.state})
         t0 = time.perf_counter()
-        with fastops.kernel_threads(kernel_threads((h, w), threads) if fast else None):
+        with bridge.numba_threads(kernel_thread_count((h, w), threads) if fast else None):
             outs = session.run(None, feed)
         walls.append((time.perf_counter() - t0) * 1e3)
         named = dict(zip([o.name for o in session.get_outputs()], outs, strict=True))

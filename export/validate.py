@@ -16,7 +16,7 @@ import torch
 from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.runtime.denoiser import Denoiser
-from rtdenoise.runtime.synthetic import synthetic_frames  # noqa: F401  (re-exported)
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: F401  (re-exported)
 
 
 @dataclass

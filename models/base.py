@@ -23,6 +23,12 @@ from rtdenoise.runtime.contract import BUFFER_CHANNELS, Declaration, RuntimeOpti
 
 from .losses import sequence_loss
 
+
+def option_buffer(name: str) -> str:
+    """The model buffer that holds run-time option `name` (`DenoiserModel.add_runtime_option`)."""
+    return f"option_{name}"
+
+
 __all__ = [
     "BUFFER_CHANNELS",
     "FAMILIES",
@@ -102,11 +108,19 @@ class DenoiserModel(nn.Module):
     state_specs: tuple[StateSpec, ...] = ()
     pad_multiple: int = 1
     input_note: str = ""
-    # Scalars a runtime may change per session (e.g. a kernel size): each is the float32
-    # buffer `option_<name>` of the model, exported as the overridable initializer
-    # `option.<name>` (runtime.contract.RuntimeOption).
+    # Scalars a runtime may change per session (e.g. a kernel size), each declared once with
+    # `add_runtime_option`: the float32 buffer `option_<name>` of the model, exported as the
+    # overridable initializer `option.<name>` (runtime.contract.RuntimeOption).
     runtime_options: tuple[RuntimeOption, ...] = ()
     cfg: FamilyConfig
+
+    def add_runtime_option(self, option: RuntimeOption) -> torch.Tensor:
+        """Declare a run-time option: listed in `runtime_options` and held as the buffer
+        `option_<name>` (its default), which the forward passes to its ops unchanged."""
+        self.runtime_options = (*self.runtime_options, option)
+        name = option_buffer(option.name)
+        self.register_buffer(name, torch.tensor(float(option.default)), persistent=False)
+        return getattr(self, name)
 
     def forward(
         self,

@@ -15,8 +15,8 @@ from typing import Any
 
 import torch
 
-from rtdenoise.runtime.atomic import atomic_path
 from rtdenoise.runtime.errors import InputError
+from rtdenoise.runtime.sequences.atomic import atomic_path
 
 from .base import DenoiserModel
 from .registry import build_model

@@ -9,10 +9,10 @@ Flips keep the buffers' meaning: a horizontal flip negates motion.x and normal.x
 vertical flip motion.y and normal.y (screen-space conventions: x right, y down for motion).
 
 Per-sample input (the rank-5 `samples` buffer, (T, S, C, H, W) in memory): its features are
-named by the model's config (runtime/samples.py); flips negate the x / y of its normals, the
-brightness factor scales its radiance, and `sample_counts` (e.g. (1, 2, 4); Isik21 4.3 takes
-them round robin per epoch, here one is drawn per batch, which a resumed run reproduces) keeps
-a random subset of S samples of every clip of a batch.
+named by the model's config (runtime/sequences/samples.py); flips negate the x / y of its
+normals, the brightness factor scales its radiance, and `sample_counts` (e.g. (1, 2, 4); Isik21
+4.3 takes them round robin per epoch, here one is drawn per batch, which a resumed run
+reproduces) keeps a random subset of S samples of every clip of a batch.
 """
 
 from __future__ import annotations
@@ -27,8 +27,13 @@ import torch
 
 from rtdenoise.runtime.contract import RADIANCE_BUFFERS, SAMPLES, SCREEN_XY_BUFFERS
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.runtime.samples import radiance_channels, signed_channels
-from rtdenoise.runtime.sequence import find_frames, find_reference, read_frame, read_reference
+from rtdenoise.runtime.sequences.frames import (
+    find_frames,
+    find_reference,
+    read_frame,
+    read_reference,
+)
+from rtdenoise.runtime.sequences.samples import radiance_channels, signed_channels
 
 # Buffers whose x / y components flip sign with the image (channel 0 = x, 1 = y), and the
 # ones that carry radiance (scaled by the brightness augmentation with the reference).

@@ -22,8 +22,8 @@ import numpy as np
 import torch
 
 from rtdenoise.runtime.contract import SAMPLES
-from rtdenoise.runtime.metrics import psnr
-from rtdenoise.runtime.samples import sample_features_of
+from rtdenoise.runtime.sequences.metrics import psnr
+from rtdenoise.runtime.sequences.samples import sample_features_of
 
 from .base import DenoiserModel
 from .checkpoint import CheckpointError, load_training_state, save_checkpoint

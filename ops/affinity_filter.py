@@ -28,11 +28,13 @@ MAX_KERNEL_SIZE = 63
 
 
 def kernel_size_value(k: float | np.ndarray, op: str = "AffinityFilter") -> int:
-    """The int of a kernel-size input; ValueError unless an odd integer in [1, 63]."""
+    """The int of a kernel-size input; ValueError unless an odd integer in [1, MAX_KERNEL_SIZE]."""
     value = float(np.asarray(k).reshape(()))
     size = int(round(value))
     if size != value or size < 1 or size % 2 == 0 or size > MAX_KERNEL_SIZE:
-        raise ValueError(f"{op}: kernel size must be an odd integer in [1, 63], got {value:g}")
+        raise ValueError(
+            f"{op}: kernel size must be an odd integer in [1, {MAX_KERNEL_SIZE}], got {value:g}"
+        )
     return size
 
 

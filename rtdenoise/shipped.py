@@ -8,7 +8,7 @@ from pathlib import Path
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
 SEQUENCES_DIR = ASSETS_DIR / "sequences"
 MODELS_DIR = ASSETS_DIR / "models"
-LAYOUTS_DIR = ASSETS_DIR / "layouts"  # layout presets (TOML), runtime/layouts.py
+LAYOUTS_DIR = ASSETS_DIR / "layouts"  # layout presets (TOML), runtime/sequences/layouts.py
 
 
 def sample_sequences() -> list[Path]:

@@ -62,6 +62,9 @@ SCREEN_XY_BUFFERS = ("motion", "normal")  # components 0, 1 are screen x, y: fli
 # Per-sample data, (S, C, H, W) with S and C model-defined (graph input [1, S, C, H, W]).
 SAMPLES = "samples"
 BUFFER_RANK: dict[str, int] = {name: 4 for name in BUFFER_CHANNELS} | {SAMPLES: 5}
+# The largest float16: the range of radiance a buffer may hold (runtime/guard.py), and where a
+# half-float output (an EXR, a caller's `out`) is clamped.
+HALF_MAX = 65504.0
 
 Dim = int | str | None
 
@@ -240,6 +243,15 @@ class Contract:
     @property
     def buffer_names(self) -> tuple[str, ...]:
         return tuple(b.name for b in self.buffers)
+
+    @property
+    def static_size(self) -> tuple[int, int] | None:
+        """(H, W) when the graph fixes them (a non-dynamic export), else None."""
+        for spec in self.buffers:
+            dims = spec.graph_shape[-2:]
+            if all(isinstance(d, int) and d > 0 for d in dims):
+                return int(dims[0]), int(dims[1])
+        return None
 
     @property
     def declaration(self) -> Declaration:

@@ -1,50 +1,39 @@
-"""The stateful executor: one ONNX Runtime session driving any contract-v1 model
-(docs/architecture.md, "Runtime"; docs/contract.md).
+"""The stateful executor: one ONNX Runtime session driving any contract-v1 model, frame by
+frame (docs/architecture.md, "Runtime"; docs/contract.md).
 
-Per frame: validate the buffers (names, shapes), pass them through the input guard
-(`runtime/guard.py`: NaN/Inf replaced, ranges clamped, colour outliers removed, all counted),
-replicate-pad H, W to the model's `pad_multiple`, run, feed `state_next.*` back as
-`state.*`, crop the output (NaN/Inf in it replaced by 0 and counted). State is zero-filled
-and `reset` = 1 on the first frame, after `reset()`, when the resolution changes, on a frame
-whose guide buffers are missing (zero everywhere) and on the frame after it or after a
-non-finite output (docs/reliability.md).
+Per frame: the buffers made planar float32 (`arrays`), passed through the input guard (`guard`:
+NaN/Inf replaced, ranges clamped, colour outliers removed, all counted) and replicate-padded to
+the model's `pad_multiple`; the run, with the state fed in and the next state written
+(`state`: ping-pong buffers, bound through ONNX Runtime's IO binding by default); the output
+cropped (NaN/Inf in it replaced by 0 and counted). State is zero-filled and `reset` = 1 on the
+first frame, after `reset()`, when the resolution changes, on a frame whose guide buffers are
+missing (zero everywhere) and on the frame after it or after a non-finite output
+(docs/reliability.md). The session, its providers, threads and fast kernels: `session`.
 
-State lives in two ping-pong buffers per tensor bound through ONNX Runtime's IO
-binding: frame t reads buffer A and writes buffer B, frame t+1 the reverse. With a
-GPU execution provider the buffers are device memory, so state never crosses to the
-host; on CPU they are numpy arrays the session reads and writes in place.
-
-Buffers come planar, (C, H, W) (or batched, (1, C, H, W)), or interleaved as a renderer holds
-them, (H, W, C) with an optional alpha channel that is ignored ((H, W) for one channel), in
-float32 or float16; the output follows the layout of `color`, or fills the caller's `out`.
-
-Fast kernels run as Python custom ops inside `session.run`; an exception there would abort
-the process, so the run is wrapped in `fastops.raise_kernel_errors()` (the kernel's error is
-raised after the run) and in `deferred_signals()` (Ctrl-C is raised after the run).
-One frame at a time: `process` and `reset` hold a lock, so an instance shared by threads
-serialises their calls (docs/reliability.md, "Threads").
+Fast kernels run as custom ops inside `session.run`; an exception there must not unwind through
+ONNX Runtime, so the run is wrapped in `bridge.raise_kernel_errors()` (the kernel's error is
+raised after the run) and in `deferred_signals()` (Ctrl-C is raised after the run). One frame
+at a time: `process` and `reset` hold a lock, so an instance shared by threads serialises their
+calls (docs/reliability.md, "Threads").
 """
 
 from __future__ import annotations
 
-import importlib
-import os
 import threading
 import time
 import warnings
-from collections.abc import Callable, Mapping, Sequence
-from contextlib import AbstractContextManager, nullcontext
-from pathlib import Path
+from collections.abc import Mapping, Sequence
+from contextlib import nullcontext
 from typing import Any
 
 import numpy as np
 import onnxruntime as ort
 
+from .arrays import output_view, pad_edge, padded_size, planar_frame, returned_frame, store
 from .contract import (
     OPTION,
     OUTPUT,
     RESET,
-    BufferSpec,
     Contract,
     ContractError,
     StateSpec,
@@ -52,199 +41,21 @@ from .contract import (
 )
 from .errors import InputError
 from .external_data import check_external_data
-from .guard import GuardReport, GuardTotals, guard_buffers, replace_nonfinite
+from .guard import GuardReport, GuardTotals, count_nonfinite, guard_buffers, replace_nonfinite
 from .interrupts import deferred_signals
-from .memory import share_cpu_arena
-from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities, placed
+from .placement import placed
+from .session import (
+    SERIAL_KERNELS_BELOW,
+    ModelSource,
+    Provider,
+    kernel_thread_count,
+    open_session,
+    option_values,
+    resolve_model,
+)
+from .state import StateStore
 
-ModelSource = str | os.PathLike | bytes
-Provider = str | tuple[str, dict[str, Any]]
-
-_PROVIDER_ALIASES = {
-    "cpu": "CPUExecutionProvider",
-    "cuda": "CUDAExecutionProvider",
-    "tensorrt": "TensorrtExecutionProvider",
-    "trt": "TensorrtExecutionProvider",
-    "dml": "DmlExecutionProvider",
-    "directml": "DmlExecutionProvider",
-    "coreml": "CoreMLExecutionProvider",
-    "openvino": "OpenVINOExecutionProvider",
-}
-# Execution provider -> OrtValue device type used to keep the state on the device.
-_DEVICE_OF_PROVIDER = {
-    "CUDAExecutionProvider": "cuda",
-    "TensorrtExecutionProvider": "cuda",
-    "DmlExecutionProvider": "dml",
-}
 _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
-# The fast kernels run on one numba thread on frames below this many pixels (padded H x W):
-# there numba's parallel regions (a wake-up and a barrier each; on a busy machine a scheduler
-# time slice) cost more than they save (docs/architecture.md, "Threads").
-SERIAL_KERNELS_BELOW = 256 * 256
-ALLOW_SPINNING = "session.intra_op.allow_spinning"  # ORT session config key, "0" or "1"
-HALF_MAX = 65504.0  # the largest float16: an `out` in half float is clamped to it
-
-
-def kernel_threads(
-    padded: tuple[int, int], threads: int | None, serial_below: int = SERIAL_KERNELS_BELOW
-) -> int | None:
-    """numba threads for the fast kernels on frames of `padded` (H, W): one below
-    `serial_below` pixels, else `threads` (None: numba's own setting)."""
-    return 1 if padded[0] * padded[1] < serial_below else threads
-
-
-def resolve_model(spec: str | os.PathLike) -> Path:
-    """Path of a model given as `demo:<family>` (a shipped demo) or a plain .onnx path."""
-    text = os.fspath(spec)
-    if text.startswith("demo:"):
-        from rtdenoise.shipped import demo_model
-
-        try:
-            return demo_model(text[len("demo:") :], ".onnx")
-        except FileNotFoundError as exc:
-            raise InputError(str(exc)) from None
-    path = Path(text).expanduser()
-    if not path.exists():
-        raise InputError(f"{path}: no such model file")
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, expected an .onnx model file")
-    if path.suffix.lower() in (".pt", ".pth"):
-        raise InputError(f"{path}: is a PyTorch checkpoint; export it first (denoise-export)")
-    return path
-
-
-def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provider]:
-    """Execution providers for the session: aliases expanded, availability checked, CPU last."""
-    if providers is None:
-        return ["CPUExecutionProvider"]
-    if isinstance(providers, str):
-        providers = [providers]
-    available = ort.get_available_providers()
-    resolved: list[Provider] = []
-    for item in providers:
-        name, options = item if isinstance(item, tuple) else (item, None)
-        name = _PROVIDER_ALIASES.get(name.lower(), name)
-        if name not in available:
-            raise InputError(
-                f"execution provider {name!r} is not available in this onnxruntime "
-                f"{ort.__version__} (available: {', '.join(available)}); CUDA/TensorRT need "
-                "the onnxruntime-gpu package, DirectML onnxruntime-directml"
-            )
-        resolved.append((name, options) if options else name)
-    if "CPUExecutionProvider" not in [p if isinstance(p, str) else p[0] for p in resolved]:
-        resolved.append("CPUExecutionProvider")
-    return resolved
-
-
-def _register_fast_kernels(options: ort.SessionOptions, bridge: str | None) -> tuple[Any, str]:
-    """Register the numba kernels of the rtdenoise custom ops through `bridge` (None: the
-    best available): (the `fastops` module, the bridge used), or (None, "") with a warning if
-    absent."""
-    try:
-        fastops = importlib.import_module(".fastops", __package__)
-    except ModuleNotFoundError as exc:
-        if exc.name and exc.name.split(".")[-1] in ("fastops", "onnxruntime_extensions", "numba"):
-            warnings.warn(
-                f"fast kernels unavailable ({exc}): the custom ops run their portable ONNX "
-                "bodies, slower; numba and onnxruntime-extensions have wheels for CPython "
-                "3.10-3.13 on Linux x86_64/aarch64, macOS arm64 and Windows x64",
-                RuntimeWarning,
-                stacklevel=3,
-            )
-            return None, ""
-        raise
-    try:
-        return fastops, fastops.register_fast_kernels(options, bridge)
-    except ValueError as exc:  # an unknown bridge name
-        raise InputError(f"fast_kernels={bridge!r}: {exc}") from None
-
-
-def _count_nonfinite(a: np.ndarray) -> int:
-    """Number of NaN/Inf values; one cheap pass (a sum) when there are none."""
-    if a.dtype.kind != "f":
-        return 0
-    with np.errstate(over="ignore", invalid="ignore"):  # a finite sum may overflow: recount
-        if np.isfinite(a.sum()):
-            return 0
-    return int(a.size - np.count_nonzero(np.isfinite(a)))
-
-
-def _pad_edge(a: np.ndarray, hp: int, wp: int) -> np.ndarray:
-    """Replicate-pad the last two axes of `a` to (hp, wp) (bottom and right); `a` if no pad."""
-    h, w = a.shape[-2:]
-    if (h, w) == (hp, wp):
-        return a
-    out = np.empty(a.shape[:-2] + (hp, wp), np.float32)
-    out[..., :h, :w] = a
-    out[..., :h, w:] = a[..., :, w - 1 : w]
-    out[..., h:, :] = out[..., h - 1 : h, :]
-    return out
-
-
-def _is_interleaved(a: np.ndarray, channels: int | None, channels_last: bool | None) -> bool:
-    """Whether `a` is (H, W, C), (H, W, C + 1) or, for C = 1, (H, W); planar wins a tie."""
-    if channels is None or channels_last is False:
-        return False
-    fits = (a.ndim == 3 and a.shape[-1] in (channels, channels + 1)) or (
-        a.ndim == 2 and channels == 1
-    )
-    if channels_last:
-        return fits
-    planar = a.ndim in (3, 4) and a.shape[-3] == channels
-    return fits and not planar
-
-
-def _output_view(out: np.ndarray, size: tuple[int, int], channels_last: bool | None) -> np.ndarray:
-    """The (3, H, W) view of a caller's output array that `_store` fills; InputError if unfit."""
-    h, w = size
-    if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float16):
-        kind = out.dtype if isinstance(out, np.ndarray) else type(out).__name__
-        raise InputError(f"out must be a float32 or float16 numpy array, got {kind}")
-    if out.shape[:2] == (h, w) and _is_interleaved(out, 3, channels_last):
-        return out[..., :3].transpose(2, 0, 1)
-    if out.shape == (3, h, w) and channels_last is not True:
-        return out
-    raise InputError(
-        f"out has shape {out.shape}; expected (3, {h}, {w}), ({h}, {w}, 3) or ({h}, {w}, 4)"
-    )
-
-
-def _store(target: np.ndarray, planar: np.ndarray) -> None:
-    """Write a (3, H, W) float32 frame into the caller's view, clamping to the half range."""
-    if target.dtype == np.float16:
-        np.clip(planar, -HALF_MAX, HALF_MAX, out=target, casting="same_kind")
-    else:
-        np.copyto(target, planar)
-
-
-class _Slot:
-    """One state tensor's storage: an OrtValue, with its host numpy array when on CPU."""
-
-    def __init__(self, shape: tuple[int, ...], device: tuple[str, int] | None):
-        zeros = np.zeros(shape, np.float32)
-        if device is None:
-            self.host: np.ndarray | None = zeros
-            self.value = ort.OrtValue.ortvalue_from_numpy(zeros)  # shares `zeros`' memory
-        else:
-            self.host = None
-            self.value = ort.OrtValue.ortvalue_from_numpy(zeros, device[0], device[1])
-        self.shape = shape
-
-    def zero(self) -> None:
-        if self.host is not None:
-            self.host.fill(0.0)
-        else:
-            self.value.update_inplace(np.zeros(self.shape, np.float32))
-
-    def sanitize(self) -> int:
-        """Replace NaN/Inf by 0 in place; return how many there were."""
-        host = self.host if self.host is not None else self.value.numpy()
-        bad = _count_nonfinite(host)
-        if bad:
-            np.nan_to_num(host, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-            if self.host is None:
-                self.value.update_inplace(host)
-        return bad
 
 
 class Denoiser:
@@ -302,56 +113,36 @@ class Denoiser:
     ) -> None:
         if isinstance(model, (bytes, bytearray)):
             self.source, payload = "<model bytes>", bytes(model)
+            check_external_data(payload)
         else:
             path = resolve_model(model)
             self.source, payload = str(path), str(path)
-        check_external_data(payload if isinstance(payload, bytes) else path)  # inside its folder
-        options = ort.SessionOptions()
-        # Warnings at load are about graph internals (e.g. run-time option initializers that
-        # are graph inputs by design: "will not be treated as constant"); errors still show.
-        options.log_severity_level = 3
-        if threads is not None:
-            if threads < 1:
-                raise InputError(f"threads must be >= 1, got {threads}")
-            options.intra_op_num_threads = threads
-            affinities = ort_thread_affinities(threads, allowed_cpus()) if pin_threads else None
-            if affinities:  # ORT places its workers itself only when it picks the count
-                options.add_session_config_entry(INTRA_OP_AFFINITIES, affinities)
-        self.threads = threads
-        self.pin_threads = threads is None if pin_threads is None else pin_threads
+            check_external_data(path)  # every external data file inside the model's folder
+        opened = open_session(
+            payload,
+            self.source,
+            fast_kernels=fast_kernels,
+            threads=threads,
+            pin_threads=pin_threads,
+            spinning=spinning,
+            providers=providers,
+            shared_arena=shared_arena,
+        )
+        self._session = opened.session
+        self.bridge = opened.bridge  # how ONNX Runtime reaches the fast kernels, "" for none
+        self.fast_kernels = bool(opened.bridge)
+        self.threads = opened.threads
+        self.pin_threads = opened.pin_threads
+        self.shared_arena = opened.shared_arena
         self.serial_below = SERIAL_KERNELS_BELOW
-        self.bridge = ""  # how ONNX Runtime reaches the fast kernels: "native", "extensions"
-        if fast_kernels:
-            wanted_bridge = fast_kernels if isinstance(fast_kernels, str) else None
-            self._fastops, self.bridge = _register_fast_kernels(options, wanted_bridge)
-        else:
-            self._fastops = None
-        self.fast_kernels = self._fastops is not None
-        if spinning is None and self.fast_kernels:
-            spinning = False  # idle ORT workers would spin while a kernel needs the cores
-        if spinning is not None:
-            options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
-        wanted = resolve_providers(providers)
-        names = [p if isinstance(p, str) else p[0] for p in wanted]
-        cpu_only = names == ["CPUExecutionProvider"]
-        self.shared_arena = shared_arena and cpu_only and share_cpu_arena(options)
-        try:
-            self._session = ort.InferenceSession(payload, options, providers=wanted)
-        except Exception as exc:  # onnxruntime's pybind errors derive from Exception only
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise InputError(f"{self.source}: ONNX Runtime cannot load the model: {first}") from exc
-        got = self._session.get_providers()
-        for name in names:
-            if name not in got:
-                raise InputError(
-                    f"{self.source}: execution provider {name} failed to start (see ONNX "
-                    f"Runtime's log); the session would run on {', '.join(got)}"
-                )
         self._contract: Contract = contract_from_session(self._session, source=self.source)
-        self._option_values = self._check_overrides(overrides or {})
-        self._device = self._state_device(got)
+        self._option_values = option_values(
+            self._session, self._contract, overrides or {}, self.source
+        )
         self._binding = self._session.io_binding() if io_binding else None
-        self._static_hw = self._graph_static_hw()
+        self._device = opened.device if io_binding else None
+        self._state = StateStore(self.state_specs, self._device, self.source)
+        self._static_hw = self._contract.static_size
 
         self.last_guard = GuardReport()  # what the input guard did to the last frame
         self.guard_totals = GuardTotals()
@@ -364,9 +155,6 @@ class Denoiser:
         self.last_total_ms = 0.0
         self.frames_processed = 0
         self._size: tuple[int, int] | None = None  # unpadded H, W of the current history
-        self._padded: tuple[int, int] | None = None
-        self._slots: dict[str, list[_Slot]] = {}  # io-binding state, [current, next]
-        self._state: dict[str, np.ndarray] = {}  # session.run state
         self._frame_index = 0
         self._pending_reset = True
         self._reset_reason = "first frame"
@@ -434,14 +222,9 @@ class Denoiser:
         if name not in {s.name for s in self.state_specs}:
             known = [s.name for s in self.state_specs]
             raise InputError(f"model {self.family!r} has no state {name!r} (state: {known})")
-        if self._binding is not None:
-            if name not in self._slots:
-                raise InputError("no frame processed yet")
-            slot = self._slots[name][0]
-            return np.array(slot.host if slot.host is not None else slot.value.numpy())
-        if name not in self._state:
+        if not self._state.started:
             raise InputError("no frame processed yet")
-        return np.array(self._state[name])
+        return np.array(self._state.current(name))
 
     @property
     def session(self) -> ort.InferenceSession:
@@ -471,7 +254,6 @@ class Denoiser:
         buffers: Mapping[str, np.ndarray],
         *,
         reset: bool = False,
-        assume_finite: bool = False,
         out: np.ndarray | None = None,
         channels_last: bool | None = None,
     ) -> np.ndarray:
@@ -488,7 +270,6 @@ class Denoiser:
         missing render pass) runs without history and the next frame starts a new one; so
         does the frame after an output with NaN/Inf (replaced by 0). An exception (a kernel's,
         Ctrl-C) leaves the history as it was before the call.
-        assume_finite: accepted for callers of earlier versions; the guard runs regardless.
         out: the caller's output array, (3, H, W) or (H, W, 3) / (H, W, 4) (alpha left as it
             is), float32 or float16 (clamped to the half range); written in place, returned.
         channels_last: True: every array is interleaved; False: planar; None (default): each
@@ -507,7 +288,7 @@ class Denoiser:
     ) -> np.ndarray:
         start = time.perf_counter()
         feeds, (h, w), (hp, wp), report = self._prepare(buffers, channels_last)
-        target = None if out is None else _output_view(out, (h, w), channels_last)
+        target = None if out is None else output_view(out, (h, w), channels_last)
         if (h, w) != self._size and self._size is not None:
             self._restart(f"size change: {self._size[0]}x{self._size[1]} -> {h}x{w}")
         if reset:
@@ -521,10 +302,7 @@ class Denoiser:
         self._write_controls()
         t0 = time.perf_counter()
         try:
-            if self._binding is not None:
-                result = self._run_bound(feeds, first, hp, wp)
-            else:
-                result = self._run_plain(feeds, first, hp, wp)
+            result = self._run(feeds, first, hp, wp)
         except BaseException as exc:
             if first:  # the history this frame was to start has not started
                 self._pending_reset = True
@@ -537,7 +315,8 @@ class Denoiser:
         self.last_run_ms = (time.perf_counter() - t0) * 1e3
         self._frame_index += 1
         self.frames_processed += 1
-        frame = result[0] if (hp, wp) == (h, w) else result[0, :, :h, :w]
+        cropped = (hp, wp) != (h, w)
+        frame = result[0, :, :h, :w] if cropped else result[0]
         bad = replace_nonfinite("output", frame)  # in place: `result` is this call's own array
         if bad is not None:
             report.output_nonfinite = int(bad.sum())
@@ -546,13 +325,11 @@ class Denoiser:
             self._restart("previous frame unusable: " + ", ".join(report.unusable))
         self._note_guard(report)
         if target is not None:
-            _store(target, frame)
-        elif "color" in buffers and _is_interleaved(np.asarray(buffers["color"]), 3, channels_last):
-            result = np.ascontiguousarray(frame.transpose(1, 2, 0))
+            store(target, frame)
         else:
-            result = frame if (hp, wp) == (h, w) else np.ascontiguousarray(frame)
+            frame = returned_frame(frame, buffers.get("color"), channels_last, cropped)
         self.last_total_ms = (time.perf_counter() - start) * 1e3
-        return out if out is not None else result
+        return out if out is not None else frame
 
     def _note_guard(self, report: GuardReport) -> None:
         self.last_guard = report
@@ -561,190 +338,80 @@ class Denoiser:
         self.last_nonfinite = report.nonfinite_pixels
         self.total_nonfinite += report.nonfinite_pixels
 
-    def _kernel_errors(self) -> AbstractContextManager[None]:
-        """Raise a fast kernel's exception here, after the run (runtime/fastops.py)."""
-        return self._fastops.raise_kernel_errors() if self._fastops else nullcontext()
-
-    def _kernel_threads(self) -> int | None:
-        """numba's thread count for the fast kernels of this run (`kernel_threads`); 1 without
-        fast kernels, None for numba's own setting."""
-        if not self._fastops:
-            return 1
-        if self._padded is None:
-            return None
-        return kernel_threads(self._padded, self.threads, self.serial_below)
-
-    def _session_call(self, run: Callable[..., Any], *args: Any) -> Any:
-        """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
-        it returns, before any state is swapped: a failed frame leaves the history as it was;
-        the kernels on their thread count, the threads placed (`pin_threads`)."""
-        team = self._kernel_threads()
-        counted = self._fastops.kernel_threads(team) if self._fastops else nullcontext()
-        where = placed(team) if self.pin_threads else nullcontext()
-        with deferred_signals(), self._kernel_errors(), counted, where:
-            return run(*args)
-
     def _prepare(
-        self,
-        buffers: Mapping[str, np.ndarray],
-        channels_last: bool | None = None,
+        self, buffers: Mapping[str, np.ndarray], channels_last: bool | None
     ) -> tuple[dict[str, np.ndarray], tuple[int, int], tuple[int, int], GuardReport]:
         """Validate, guard and pad the buffers the model reads; interleaved and half-float
         buffers become planar float32 in one copy, which the guard may then fix in place."""
-        if not isinstance(buffers, Mapping):
-            raise InputError(f"process() takes a dict name -> array, got {type(buffers).__name__}")
-        specs = self._contract.buffers
-        missing = [s.name for s in specs if s.name not in buffers]
-        if missing:
-            given = ", ".join(sorted(map(str, buffers))) or "none"
-            raise InputError(
-                f"missing buffer {missing[0]!r}: model {self.family!r} needs "
-                f"{', '.join(self.required_buffers)}; given: {given}"
-            )
-        arrays: dict[str, np.ndarray] = {}
-        size: tuple[int, int] | None = None
-        for spec in specs:
-            a = self._check_shape(spec, np.asarray(buffers[spec.name]), channels_last)
-            if size is None:
-                size, first = a.shape[-2:], spec.name
-            elif a.shape[-2:] != size:
-                raise InputError(
-                    f"buffer {spec.name!r} has shape {np.shape(buffers[spec.name])}; expected "
-                    f"H x W = {size[0]} x {size[1]} like {first!r}"
-                )
-            arrays[spec.name] = a
-        if size is None:  # a model that reads no buffers cannot tell the frame size
-            raise InputError(f"model {self.family!r} lists no input buffers")
-        h, w = size
-        m = self.pad_multiple
-        hp, wp = -(-h // m) * m, -(-w // m) * m
+        arrays, owned, size = planar_frame(
+            self._contract.buffers, buffers, channels_last, self.family
+        )
+        hp, wp = padded_size(size, self.pad_multiple)
         if self._static_hw is not None and (hp, wp) != self._static_hw:
             sh, sw = self._static_hw
-            raise InputError(f"model takes {sh}x{sw} frames only, got {h}x{w} (padded {hp}x{wp})")
-
-        converted: dict[str, np.ndarray] = {}
-        owned = []
-        for name, a in arrays.items():
-            a32 = np.ascontiguousarray(a, dtype=np.float32)
-            if not np.may_share_memory(a32, np.asarray(buffers[name])):
-                owned.append(name)  # a converted copy: the guard may fix it in place
-            converted[name] = a32
-        guarded, report = guard_buffers(converted, owned)  # never modifies the caller's arrays
-        feeds = {name: _pad_edge(a, hp, wp) for name, a in guarded.items()}
-        return feeds, (h, w), (hp, wp), report
-
-    def _check_shape(
-        self, spec: BufferSpec, a: np.ndarray, channels_last: bool | None = None
-    ) -> np.ndarray:
-        """(C, H, W) or (1, C, H, W) [rank 5: (S, C, H, W) or (1, S, C, H, W)], or interleaved
-        (H, W, C[+1]) / (H, W) -> batched planar view."""
-        given = a.shape
-        good = a.dtype.kind in "fiu"
-        if good and spec.rank == 4 and _is_interleaved(a, spec.channels, channels_last):
-            a = (a[..., None] if a.ndim == 2 else a[..., : spec.channels]).transpose(2, 0, 1)
-        if good and a.ndim == spec.rank - 1:
-            a = a[None]
-        good = good and a.ndim == spec.rank and a.shape[0] == 1
-        good = good and (spec.channels is None or a.shape[-3] == spec.channels)
-        good = good and min(a.shape[-2:], default=0) > 0
-        if not good:
-            batched = spec.expected.replace("(", "(1, ", 1)
-            interleaved = "(H, W)" if spec.channels == 1 else f"(H, W, {spec.channels}[+alpha])"
             raise InputError(
-                f"buffer {spec.name!r} has shape {given} and dtype {a.dtype}; expected "
-                f"{spec.expected}, {batched} or {interleaved}, float32 or float16"
+                f"model takes {sh}x{sw} frames only, got {size[0]}x{size[1]} (padded {hp}x{wp})"
             )
-        return a
+        guarded, report = guard_buffers(arrays, owned)  # never modifies the caller's arrays
+        feeds = {name: pad_edge(a, hp, wp) for name, a in guarded.items()}
+        return feeds, size, (hp, wp), report
 
     def _start_history(self, size: tuple[int, int], padded: tuple[int, int]) -> None:
         """Zero the state (allocating it at a new size) for a fresh history."""
-        if padded != self._padded:
-            self._slots, self._state = {}, {}
-            hp, wp = padded
-            for s in self.state_specs:
-                if self._binding is not None:
-                    shape = s.shape(hp, wp)
-                    self._slots[s.name] = [_Slot(shape, self._device), _Slot(shape, self._device)]
-                else:
-                    self._state[s.name] = np.zeros(s.shape(hp, wp), np.float32)
-            self._padded = padded
-        else:
-            for pair in self._slots.values():
-                pair[0].zero()
-            for a in self._state.values():
-                a.fill(0.0)
+        self._state.start(padded)
         self._size = size
         self._frame_index = 0
         self._pending_reset = False
 
     def _write_controls(self) -> None:
         """An online model's freeze control for this frame: 0 = take the update step."""
-        if self._freeze is None:
-            return
-        step = self.learn and self._frame_index % self.learn_every == 0
-        value = 0.0 if step else 1.0
+        if self._freeze is not None:
+            step = self.learn and self._frame_index % self.learn_every == 0
+            self._state.fill(self._freeze, 0.0 if step else 1.0)
+
+    def _run(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
+        """One session run: the frame's buffers, reset and options in, the output and the next
+        state out (`self._state` swapped, NaN/Inf in it replaced and counted)."""
+        controls = {RESET: _RESET[first]} if self._contract.has_reset else {}
         if self._binding is None:
-            self._state[self._freeze].fill(value)
-            return
-        slot = self._slots[self._freeze][0]
-        if slot.host is not None:
-            slot.host.fill(value)
-        else:
-            slot.value.update_inplace(np.full(slot.shape, value, np.float32))
-
-    def _run_plain(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
-        inputs = dict(feeds)
-        if self._contract.has_reset:
-            inputs[RESET] = _RESET[first]
-        for name, (value, _) in self._option_values.items():
-            inputs[OPTION + name] = value
-        for s in self.state_specs:
-            inputs[s.input_name] = self._state[s.name]
-        names = [OUTPUT] + [s.output_name for s in self.state_specs]
-        out, *states = self._session_call(self._session.run, names, inputs)
-        self._check_output_shape(out.shape, hp, wp)
-        bad = 0
-        for s, value in zip(self.state_specs, states, strict=True):
-            if value.shape != s.shape(hp, wp):
-                raise ContractError(
-                    f"{self.source}: model broke the contract: {s.output_name} has shape "
-                    f"{value.shape}, expected {s.shape(hp, wp)}"
-                )
-            n = _count_nonfinite(value)
-            if n:
-                np.nan_to_num(value, copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-                bad += n
-            self._state[s.name] = value
-        self._note_state_nonfinite(bad)
-        return out
-
-    def _run_bound(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
+            inputs = feeds | controls | self._state.feeds()
+            inputs |= {OPTION + name: value for name, (value, _) in self._option_values.items()}
+            out, *written = self._session_call(
+                self._session.run, [OUTPUT, *self._state.output_names], inputs
+            )
+            self._check_output_shape(out.shape, hp, wp)
+            self._note_state_nonfinite(self._state.swap(written))
+            return out
         io = self._binding
         io.clear_binding_inputs()
         io.clear_binding_outputs()
-        for name, array in feeds.items():
+        for name, array in (feeds | controls).items():
             io.bind_cpu_input(name, array)
-        if self._contract.has_reset:
-            io.bind_cpu_input(RESET, _RESET[first])
         for name, (_, value) in self._option_values.items():
             io.bind_ortvalue_input(OPTION + name, value)  # bind_cpu_input refuses initializers
-        for s in self.state_specs:
-            current, following = self._slots[s.name]
-            io.bind_ortvalue_input(s.input_name, current.value)
-            io.bind_ortvalue_output(s.output_name, following.value)
+        self._state.bind(io)
         out = np.empty((1, 3, hp, wp), np.float32)
         io.bind_ortvalue_output(OUTPUT, ort.OrtValue.ortvalue_from_numpy(out))  # written in place
         self._session_call(self._session.run_with_iobinding, io)
         # On CPU check every state tensor (one cheap sum each); on a device only when the
         # output shows a problem, so that state stays on the device.
-        check_state = self._device is None or _count_nonfinite(out) > 0
-        bad = 0
-        for pair in self._slots.values():
-            pair.reverse()  # the state just written becomes the current one
-            if check_state:
-                bad += pair[0].sanitize()
-        self._note_state_nonfinite(bad)
+        check = self._device is None or count_nonfinite(out) > 0
+        self._note_state_nonfinite(self._state.swap(check=check))
         return out
+
+    def _session_call(self, run: Any, *args: Any) -> Any:
+        """`run(*args)` (a session run) with Ctrl-C held and a kernel's exception raised once
+        it returns, before any state is swapped: a failed frame leaves the history as it was;
+        the kernels on their thread count, the threads placed (`pin_threads`)."""
+        if not self.fast_kernels:
+            with deferred_signals(), placed(1) if self.pin_threads else nullcontext():
+                return run(*args)
+        from . import bridge
+
+        team = kernel_thread_count(self._state.padded, self.threads, self.serial_below)
+        where = placed(team) if self.pin_threads else nullcontext()
+        with deferred_signals(), bridge.raise_kernel_errors(), bridge.numba_threads(team), where:
+            return run(*args)
 
     def _note_state_nonfinite(self, bad: int) -> None:
         if bad and not self.total_state_nonfinite:
@@ -752,7 +419,7 @@ class Denoiser:
                 f"{self.source}: the model produced {bad} NaN/Inf state values on frame "
                 f"{self.frames_processed}; replaced by 0 (a model bug)",
                 RuntimeWarning,
-                stacklevel=4,
+                stacklevel=5,
             )
         self.last_state_nonfinite = bad
         self.total_state_nonfinite += bad
@@ -763,56 +430,3 @@ class Denoiser:
                 f"{self.source}: model broke the contract: output has shape {tuple(shape)}, "
                 f"expected {(1, 3, hp, wp)}"
             )
-
-    # -- setup helpers ----------------------------------------------------------------------
-
-    def _check_overrides(
-        self, overrides: Mapping[str, float]
-    ) -> dict[str, tuple[np.ndarray, ort.OrtValue]]:
-        """name -> (value as a float32 scalar, its OrtValue) for every overridden option."""
-        known = {o.name: o for o in self._contract.options}
-        inputs = {i.name for i in self._session.get_overridable_initializers()}
-        values = {}
-        for name, value in overrides.items():
-            option = known.get(name)
-            if option is None:
-                raise InputError(
-                    f"{self.source}: model {self.family!r} has no run-time option {name!r} "
-                    f"(options: {', '.join(known) or 'none'})"
-                )
-            if option.input_name not in inputs:
-                raise ContractError(
-                    f"{self.source}: option {name!r} is declared but {option.input_name!r} is "
-                    "not an overridable initializer of the graph"
-                )
-            array = np.array(option.check(value), np.float32)
-            values[name] = (array, ort.OrtValue.ortvalue_from_numpy(array))
-        return values
-
-    def _state_device(self, providers: list[str]) -> tuple[str, int] | None:
-        """Where bound state lives: None for host memory, else (device type, device id)."""
-        for name in providers:
-            device = _DEVICE_OF_PROVIDER.get(name)
-            if device is None:
-                continue
-            options = self._session.get_provider_options().get(name, {})
-            device_id = int(options.get("device_id", 0) or 0)
-            try:
-                ort.OrtValue.ortvalue_from_numpy(np.zeros(1, np.float32), device, device_id)
-            except Exception as exc:
-                warnings.warn(
-                    f"cannot allocate state on {device}:{device_id} ({exc}); keeping it on host",
-                    RuntimeWarning,
-                    stacklevel=3,
-                )
-                return None
-            return device, device_id
-        return None
-
-    def _graph_static_hw(self) -> tuple[int, int] | None:
-        """(H, W) when the graph fixes them (non-dynamic export), else None."""
-        for spec in self._contract.buffers:
-            dims = spec.graph_shape[-2:]
-            if all(isinstance(d, int) and d > 0 for d in dims):
-                return int(dims[0]), int(dims[1])
-        return None

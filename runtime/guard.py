@@ -46,7 +46,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-HALF_MAX = 65504.0
+from .contract import HALF_MAX
+
 ALBEDO_MAX = 1.0
 DEPTH_MAX = 1e10
 MOTION_FRAMES = 2.0  # motion bound in multiples of max(H, W)
@@ -120,18 +121,38 @@ def _pixel_mask(mask: np.ndarray) -> np.ndarray:
     return mask.reshape(-1, h, w).any(axis=0)
 
 
+def _surely_finite(a: np.ndarray) -> bool:
+    """True when every value of the float array `a` is finite, by one cheap pass (a sum); False
+    means "look closer" (a finite sum may overflow)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return bool(np.isfinite(a.sum()))
+
+
+def nonfinite_pixels(a: np.ndarray) -> np.ndarray | None:
+    """The (H, W) mask of the pixels of a (..., H, W) float array with NaN/Inf in any channel,
+    or None when every value is finite: then it costs one pass (a sum), the common case."""
+    if _surely_finite(a):
+        return None
+    bad = ~np.isfinite(a)
+    return _pixel_mask(bad) if bad.any() else None
+
+
+def count_nonfinite(a: np.ndarray) -> int:
+    """Number of NaN/Inf values of `a` (0 for an integer array); one sum when there are none."""
+    if a.dtype.kind != "f" or _surely_finite(a):
+        return 0
+    return int(a.size - np.count_nonzero(np.isfinite(a)))
+
+
 def replace_nonfinite(name: str, a: np.ndarray) -> np.ndarray | None:
     """Replace NaN/Inf in `a` (..., H, W) in place by the buffer's rule; the (H, W) mask of the
     pixels that had any, or None when every value is finite (one cheap pass: a sum)."""
-    with np.errstate(over="ignore", invalid="ignore"):  # a finite sum may overflow: recheck
-        if np.isfinite(a.sum()):
-            return None
-    bad = ~np.isfinite(a)
-    if not bad.any():
+    mask = nonfinite_pixels(a)
+    if mask is None:
         return None
     r = rule_for(name, a.shape[-2:])
     np.nan_to_num(a, copy=False, nan=r.nan, posinf=r.posinf, neginf=r.neginf)
-    return _pixel_mask(bad)
+    return mask
 
 
 def _neighbour_max(m: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
@@ -298,8 +319,10 @@ __all__ = [
     "GuardTotals",
     "Guarded",
     "Rule",
+    "count_nonfinite",
     "guard_buffer",
     "guard_buffers",
+    "nonfinite_pixels",
     "replace_nonfinite",
     "replace_outliers",
     "rule_for",

@@ -3,7 +3,7 @@
 Python runs a signal handler in the main thread at its next bytecode, which during
 `session.run` is inside a Python custom op (the fast kernels): the KeyboardInterrupt that
 `default_int_handler` raises there would leave the op and abort the process
-(`runtime/fastops.py`). Inside `deferred_signals()` a SIGINT or SIGTERM whose handler is a
+(`runtime/bridge/extensions.py`). Inside `deferred_signals()` a SIGINT or SIGTERM whose handler is a
 Python function is only noted; the handler runs when the block ends, in ordinary Python code,
 so Ctrl-C still raises KeyboardInterrupt, one frame later at most. Elsewhere than in the main
 thread (where Python never runs handlers) it does nothing.

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from rtdenoise.runtime.samples import DEFAULT_SAMPLE_FEATURES
+from rtdenoise.runtime.sequences.samples import DEFAULT_SAMPLE_FEATURES
 
 
 def samples_of(buffers: dict[str, torch.Tensor], s: int = 2) -> torch.Tensor:

@@ -16,7 +16,7 @@ import torch
 from rtdenoise.export import ops as eops
 from rtdenoise.models.ops import TORCH_OPS
 from rtdenoise.ops import get_spec
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge as fast_bridge
 from rtdenoise.runtime.kernels import KERNELS
 
 RTOL = 1e-4
@@ -33,7 +33,7 @@ def session(op: str, attrs: tuple, bridge: str) -> ort.InferenceSession:
     model = eops.single_op_model(op, None, dict(attrs))
     so = ort.SessionOptions()
     if bridge:
-        assert fastops.register_fast_kernels(so, bridge) == bridge
+        assert fast_bridge.register_fast_kernels(so, bridge) == bridge
     return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
 
 
@@ -50,9 +50,9 @@ def all_forms(op: str, inputs: list[np.ndarray], attrs: dict) -> dict[str, np.nd
         outs["torch"] = first(ref).numpy()
     feed = dict(zip(spec.input_names, inputs, strict=True))
     for name, bridge in (("portable", ""), ("ort_fast", "native"), ("ort_ext", "extensions")):
-        before = fastops.CALLS[op]
+        before = fast_bridge.CALLS[op]
         outs[name] = session(op, tuple(sorted(attrs.items())), bridge).run(None, feed)[0]
-        assert fastops.CALLS[op] - before == (1 if bridge else 0), name
+        assert fast_bridge.CALLS[op] - before == (1 if bridge else 0), name
     outs["numba"] = first(KERNELS[op](*inputs, **attrs))
     return outs
 

@@ -169,7 +169,7 @@ def test_denoise_run_kernel_size_flag(model, exported, tmp_path):
     from typer.testing import CliRunner
 
     from rtdenoise.cli.run import app
-    from rtdenoise.runtime.sequence import read_exr
+    from rtdenoise.runtime.sequences.frames import read_exr
     from rtdenoise.shipped import sample_sequences
 
     onnx_path = tmp_path / "affinity.onnx"

@@ -23,9 +23,9 @@ from typer.testing import CliRunner
 
 from rtdenoise.cli.run import app
 from rtdenoise.runtime import Denoiser
-from rtdenoise.runtime.exr import read_exr, write_exr
-from rtdenoise.runtime.metrics import psnr
-from rtdenoise.runtime.sequence import read_frame, read_reference
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.frames import read_frame, read_reference
+from rtdenoise.runtime.sequences.metrics import psnr
 from rtdenoise.shipped import sample_sequences
 
 T, BAD, RECOVERY, TOLERANCE_DB = 10, 3, 4, 0.5
@@ -140,8 +140,7 @@ def test_bad_frame_output_finite_reported_and_recovered(clean, model, path, case
         if t >= BAD + RECOVERY:
             lost = psnr(expected[t], REFERENCE) - psnr(out, REFERENCE)
             assert lost < TOLERANCE_DB, (case, t, lost)
-    state_finite = [np.isfinite(pair[0].host).all() for pair in den._slots.values()]
-    assert all(state_finite)
+    assert all(np.isfinite(den.state_value(s.name)).all() for s in den.state_specs)
 
 
 def test_an_unusable_frame_runs_without_history_and_restarts_it():

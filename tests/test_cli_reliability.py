@@ -10,7 +10,7 @@ import pytest
 from test_bad_input import make_files
 from test_cli_run import invoke, make_sequence, rgb, temp_files
 
-from rtdenoise.runtime.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
 
 
 def one_error_line(res) -> str:
@@ -79,8 +79,8 @@ def test_resume_denoises_the_missing_frames_exactly(tmp_path):
 
 
 def test_resume_rebuilds_at_most_16_frames_of_history(tmp_path, monkeypatch):
-    from rtdenoise.runtime import run as run_module
-    from rtdenoise.runtime.backend import PassThrough
+    from rtdenoise.runtime.sequences import run as run_module
+    from rtdenoise.runtime.sequences.backend import PassThrough
 
     seq = tmp_path / "seq"
     seq.mkdir()

@@ -10,11 +10,11 @@ import OpenEXR
 import pytest
 from typer.testing import CliRunner
 
-import rtdenoise.runtime.sequence as sequence
+import rtdenoise.runtime.sequences.frames as sequence
 from rtdenoise.cli.run import DEFAULT_MODEL, app
-from rtdenoise.runtime import metrics
-from rtdenoise.runtime.exr import read_exr, write_exr
-from rtdenoise.runtime.preview import encode_png, to_uint8
+from rtdenoise.runtime.sequences import metrics
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.preview import encode_png, to_uint8
 
 H, W = 64, 64
 runner = CliRunner()

@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from rtdenoise.cli.cluster import report_failures
 from rtdenoise.cli.common import EXIT_BAD_INPUT, EXIT_FAILURE
-from rtdenoise.runtime.cluster import TaskOutcome
+from rtdenoise.runtime.sequences.cluster import TaskOutcome
 from rtdenoise.shipped import sample_sequences
 
 HAS_RAY = importlib.util.find_spec("ray") is not None
@@ -30,7 +30,7 @@ def local_ray():
     """One local Ray instance with 2 CPUs (about 10 s to start) shared by this module."""
     import ray
 
-    from rtdenoise.runtime.cluster import connect
+    from rtdenoise.runtime.sequences.cluster import connect
 
     started = connect(num_cpus=2)
     yield
@@ -133,10 +133,10 @@ def test_shots_as_ray_tasks_equal_one_after_another_and_a_broken_shot_fails_alon
 
 @needs_ray
 def test_a_lost_worker_is_retried_and_the_shot_comes_out_the_same(tmp_path, local_ray):
-    from rtdenoise.runtime.backend import load_backend
-    from rtdenoise.runtime.cluster import run_shots
-    from rtdenoise.runtime.run import Job, run_sequence
-    from rtdenoise.runtime.sequence import find_frames
+    from rtdenoise.runtime.sequences.backend import load_backend
+    from rtdenoise.runtime.sequences.cluster import run_shots
+    from rtdenoise.runtime.sequences.frames import find_frames
+    from rtdenoise.runtime.sequences.run import Job, run_sequence
 
     shot = sample_sequences()[1]
     frames = find_frames(shot)

@@ -1,5 +1,6 @@
 """How `denoise-bench compare` times: every size in every round, a state per size, more frames
-for small sizes (runtime/compare.py). Timing itself is not asserted (benchmarks/ measure it)."""
+for small sizes (runtime/sequences/compare.py). Timing itself is not asserted (benchmarks/
+measure it)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import itertools
 
 import numpy as np
 
-from rtdenoise.runtime import compare
+from rtdenoise.runtime.sequences import compare
 
 SIZES = [(16, 24), (720, 1280)]
 

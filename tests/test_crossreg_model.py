@@ -21,7 +21,7 @@ from rtdenoise.models.ops.cross_bilateral_filter import cross_bilateral_filter_r
 from rtdenoise.models.ops.cross_regression import cross_regression
 from rtdenoise.models.registry import build_model
 from rtdenoise.models.reprojection import ReprojectionConfig, svgf_reproject
-from rtdenoise.runtime.sequence import find_frames, read_frame
+from rtdenoise.runtime.sequences.frames import find_frames, read_frame
 from rtdenoise.shipped import MODELS_DIR, sample_sequences
 
 SMALL = CrossReg.example_config

@@ -27,8 +27,13 @@ SCRIPT = textwrap.dedent(
     sys.modules["torch"] = None  # any `import torch` now raises ImportError
     import numpy as np
     from rtdenoise.runtime import Denoiser
-    from rtdenoise.runtime.metrics import mse_tonemapped, psnr_from_mse
-    from rtdenoise.runtime.sequence import find_frames, match_references, read_frame, read_reference
+    from rtdenoise.runtime.sequences.metrics import mse_tonemapped, psnr_from_mse
+    from rtdenoise.runtime.sequences.frames import (
+        find_frames,
+        match_references,
+        read_frame,
+        read_reference,
+    )
 
     paths = find_frames(sys.argv[1])
     frames = [read_frame(p).buffers for p in paths] * 3
@@ -73,7 +78,7 @@ def test_learn_every_and_no_online_reach_the_graph(tmp_path):
 
     from rtdenoise.cli.run import app
     from rtdenoise.runtime import Denoiser
-    from rtdenoise.runtime.sequence import find_frames, read_frame
+    from rtdenoise.runtime.sequences.frames import find_frames, read_frame
 
     seq = sample_sequences()[0]
     frames = [read_frame(p).buffers for p in find_frames(seq)]

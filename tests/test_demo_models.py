@@ -11,9 +11,14 @@ import numpy as np
 import pytest
 
 from rtdenoise.runtime.denoiser import Denoiser
-from rtdenoise.runtime.metrics import SequenceMetrics
-from rtdenoise.runtime.samples import sample_features_of, samples_from_buffers
-from rtdenoise.runtime.sequence import find_frames, match_references, read_frame, read_reference
+from rtdenoise.runtime.sequences.frames import (
+    find_frames,
+    match_references,
+    read_frame,
+    read_reference,
+)
+from rtdenoise.runtime.sequences.metrics import SequenceMetrics
+from rtdenoise.runtime.sequences.samples import sample_features_of, samples_from_buffers
 from rtdenoise.shipped import MODELS_DIR, sample_sequences
 
 # family -> minimum PSNR gain over the noisy input, dB
@@ -108,7 +113,7 @@ def test_shared_cpu_arena_changes_no_number():
     each (the way `denoise-bench compare` runs them): sessions on the process's shared CPU
     arena (opt-in) give the same outputs as sessions with an arena of their own (default)."""
     from rtdenoise.runtime.memory import USE_ENV_ALLOCATORS
-    from rtdenoise.runtime.synthetic import synthetic_frames
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
 
     def config(den: Denoiser) -> str:
         try:

@@ -131,7 +131,7 @@ def test_half_resolution_state(io_binding: bool) -> None:
         out = den.process({"color": color, "depth": depth})
         assert out.shape == (3, 31, 21)
         np.testing.assert_allclose(out, ref.step(color, depth, i == 0), **TOL)
-    state = den._slots["low"][0].host if io_binding else den._state["low"]
+    state = den.state_value("low")
     assert state.shape == (1, 4, 16, 11) == den.state_specs[0].shape(32, 22)
     np.testing.assert_allclose(state[0], ref.low, **TOL)
 
@@ -153,21 +153,6 @@ def test_nonfinite_inputs_replaced_and_counted(ema: bytes, io_binding: bool) -> 
         assert den.last_nonfinite == (4 if i == 2 else 0)
     assert den.total_nonfinite == 4 and den.total_state_nonfinite == 0
     assert np.isnan(bad[0, 0, 0])  # the caller's array is untouched
-
-
-def test_assume_finite_no_longer_skips_the_guard(ema: bytes) -> None:
-    """`assume_finite=True` (earlier versions skipped the NaN/Inf scan with it) is accepted and
-    changes nothing: the guard always runs, so a NaN given anyway is still replaced."""
-    checked, trusting = (Denoiser(ema, fast_kernels=False) for _ in range(2))
-    colors, albedos = frames(3, 16, 16), albedo_frames(3, 16, 16, 1)
-    bad = colors[1].copy()
-    bad[0, 0, 0] = np.nan
-    for color in (colors[0], bad, colors[2]):
-        a = checked.process({"color": color, "albedo": albedos[0]})
-        b = trusting.process({"color": color, "albedo": albedos[0]}, assume_finite=True)
-        np.testing.assert_array_equal(a, b)
-        assert np.isfinite(b).all() and trusting.last_nonfinite == checked.last_nonfinite
-    assert trusting.total_nonfinite == 1 and trusting.total_state_nonfinite == 0
 
 
 @pytest.mark.parametrize("io_binding", [True, False])
@@ -366,15 +351,15 @@ def test_out_arrays_are_filled_in_place(ema: bytes) -> None:
 def test_layout_tie_and_forced_channels_last(ema: bytes) -> None:
     """(3, 8, 3) fits planar (a 3-pixel-wide frame) and interleaved (3 pixels tall): planar
     unless channels_last=True; interleaved depth may be (H, W)."""
-    from rtdenoise.runtime.denoiser import _is_interleaved
+    from rtdenoise.runtime.arrays import is_interleaved
 
     den = Denoiser(ema, fast_kernels=False)
     tie = np.ones((3, 8, 3), np.float32)
     assert den.process({"color": tie, "albedo": tie}).shape == (3, 8, 3)
     out = den.process({"color": tie, "albedo": tie}, channels_last=True)
     assert out.shape == (3, 8, 3) and den.frame_index == 1  # 3x8 frames: a new history
-    assert _is_interleaved(np.zeros((5, 7)), 1, None)
-    assert not _is_interleaved(np.zeros((1, 5, 7)), 1, None)
-    assert not _is_interleaved(np.zeros((5, 7, 3)), 3, False)
+    assert is_interleaved(np.zeros((5, 7)), 1, None)
+    assert not is_interleaved(np.zeros((1, 5, 7)), 1, None)
+    assert not is_interleaved(np.zeros((5, 7, 3)), 3, False)
     with pytest.raises(InputError, match=r"or \(H, W, 3\[\+alpha\]\), float32 or float16"):
         den.process({"color": np.zeros((8, 8, 5), np.float32), "albedo": tie})

@@ -10,7 +10,7 @@ from rtdenoise.cli.train import app as train_app
 from rtdenoise.models.device import DeviceError, model_device, torch_device
 from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.models.registry import build_model
-from rtdenoise.runtime.synthetic import synthetic_frames
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames
 
 no_cuda = pytest.mark.skipif(torch.cuda.is_available(), reason="this machine has CUDA")
 

@@ -13,8 +13,8 @@ from torch import nn
 from rtdenoise.export.onnx_export import export_model
 from rtdenoise.export.validate import synthetic_frames, torch_outputs, validate
 from rtdenoise.models.base import DenoiserModel, StateSpec
-from rtdenoise.runtime.atomic import write_bytes_atomic as write_atomic
 from rtdenoise.runtime.denoiser import Denoiser
+from rtdenoise.runtime.sequences.atomic import write_bytes_atomic as write_atomic
 
 
 class EmaDenoiser(DenoiserModel):

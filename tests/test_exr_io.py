@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.runtime.exr import read_exr, read_exr_header, write_exr
-from rtdenoise.runtime.preview import encode_png, to_uint8, write_png
-from rtdenoise.runtime.sequence import (
+from rtdenoise.runtime.sequences.exr import read_exr, read_exr_header, write_exr
+from rtdenoise.runtime.sequences.frames import (
     as_written,
     quantize_output,
     read_frame,
     read_reference,
     write_output,
 )
+from rtdenoise.runtime.sequences.preview import encode_png, to_uint8, write_png
 
 H, W = 48, 64
 

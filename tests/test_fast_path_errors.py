@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rtdenoise.runtime.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
 from rtdenoise.shipped import sample_sequences
 
 # Python leaves SIGINT ignored when the parent ignored it (a background job): the children
@@ -90,9 +90,9 @@ SCRIPT_DENOISER = PATCH + textwrap.dedent(
 
     # A host driving its own session with the kernels registered.
     import onnxruntime as ort
-    from rtdenoise.runtime import fastops
+    from rtdenoise.runtime import bridge as fast_bridge
     so = ort.SessionOptions()
-    fastops.register_fast_kernels(so, BRIDGE)
+    fast_bridge.register_fast_kernels(so, BRIDGE)
     sess = ort.InferenceSession(clean.source, so)
     feeds = {k: v[None] for k, v in frames[0].items()}
     feeds["reset"] = np.array(1.0, np.float32)
@@ -101,13 +101,13 @@ SCRIPT_DENOISER = PATCH + textwrap.dedent(
     fast_kernel.FastKernel.compute = failing("value")
     unchecked = sess.run(["output"], feeds)[0]  # no crash: NaN output, the error pending
     try:
-        with fastops.raise_kernel_errors():
+        with fast_bridge.raise_kernel_errors():
             sess.run(["output"], feeds)
         host = None
-    except fastops.KernelError as exc:
+    except fast_bridge.KernelError as exc:
         host = [str(exc), type(exc.__cause__).__name__]
     fast_kernel.FastKernel.compute = ORIGINAL
-    with fastops.raise_kernel_errors():  # nothing stale is raised by a good run
+    with fast_bridge.raise_kernel_errors():  # nothing stale is raised by a good run
         good = sess.run(["output"], feeds)[0]
     result["host"] = {"unchecked_nan": bool(np.isnan(unchecked).all()), "error": host,
                       "good": bool(np.isfinite(good).all())}
@@ -183,16 +183,17 @@ SCRIPT_CLI = PATCH + textwrap.dedent(
 
 
 def kernel_calls_per_frame(model: str) -> int:
-    from rtdenoise.runtime import Denoiser, fastops
+    from rtdenoise.runtime import Denoiser
+    from rtdenoise.runtime import bridge as fast_bridge
 
     den = Denoiser(model, threads=1)
-    before = sum(fastops.CALLS.values())
+    before = sum(fast_bridge.CALLS.values())
     den.process(make_frame_buffers())
-    return sum(fastops.CALLS.values()) - before
+    return sum(fast_bridge.CALLS.values()) - before
 
 
 def make_frame_buffers() -> dict[str, np.ndarray]:
-    from rtdenoise.runtime.sequence import read_frame
+    from rtdenoise.runtime.sequences.frames import read_frame
 
     return read_frame(sorted(sample_sequences()[0].glob("frame_*.exr"))[0]).buffers
 

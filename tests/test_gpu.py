@@ -24,7 +24,7 @@ from rtdenoise.export.deploy import to_deploy
 from rtdenoise.export.pipeline import export_checkpoint
 from rtdenoise.models.checkpoint import load_checkpoint
 from rtdenoise.models.frame_loop import FrameLoop
-from rtdenoise.runtime.synthetic import synthetic_frames
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames
 from rtdenoise.shipped import demo_model, sample_sequences
 
 DEVICE = os.environ.get("RTDENOISE_TEST_DEVICE", "cuda")

@@ -16,7 +16,7 @@ from rtdenoise.runtime.guard import (
     guard_buffers,
     replace_nonfinite,
 )
-from rtdenoise.runtime.sequence import find_frames, read_frame
+from rtdenoise.runtime.sequences.frames import find_frames, read_frame
 from rtdenoise.shipped import sample_sequences
 
 

@@ -9,7 +9,8 @@ import OpenEXR
 import pytest
 
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.runtime.layouts import (
+from rtdenoise.runtime.sequences.frames import read_frame
+from rtdenoise.runtime.sequences.layouts import (
     check_channels,
     extract_buffers,
     get_layout,
@@ -17,7 +18,6 @@ from rtdenoise.runtime.layouts import (
     resolve_channels,
     stack_buffers,
 )
-from rtdenoise.runtime.sequence import read_frame
 
 H, W = 6, 8
 
@@ -208,7 +208,7 @@ def test_stack_buffers_converts_once_and_check_channels():
 
 def test_presets_are_the_shipped_toml_files(tmp_path):
     """`canonical` and `blender` are data; a copy of a preset read by path is the same layout."""
-    from rtdenoise.runtime.layouts import LAYOUTS, load_layout
+    from rtdenoise.runtime.sequences.layouts import LAYOUTS, load_layout
     from rtdenoise.shipped import LAYOUTS_DIR
 
     assert list(LAYOUTS) == ["canonical", "blender"]

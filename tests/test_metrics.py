@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from rtdenoise.runtime import metrics as m
+from rtdenoise.runtime.sequences import metrics as m
 
 T1 = 0.5 ** (1 / 2.4)  # tau(1) = (1 / 2)^(1/2.4), Isik21 eq. 15
 

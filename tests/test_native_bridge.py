@@ -1,5 +1,5 @@
-"""The native custom-op bridge (runtime/_ort_bridge.c + runtime/native_ops.py): built by the
-install, the default bridge, zero-copy, and every failure a Python exception after the run.
+"""The native custom-op bridge (runtime/bridge/_ort_bridge.c + runtime/bridge/native.py): built
+by the install, the default bridge, zero-copy, and every failure a Python exception after the run.
 (Agreement of every op with its other forms, on both bridges: test_op_specs.py.)"""
 
 from __future__ import annotations
@@ -11,14 +11,16 @@ import pytest
 from onnx import helper
 
 from rtdenoise.export import ops as eops
-from rtdenoise.runtime import Denoiser, fastops, native_ops
+from rtdenoise.runtime import Denoiser
+from rtdenoise.runtime import bridge as fast_bridge
+from rtdenoise.runtime.bridge import native
 from rtdenoise.runtime.kernels import KERNELS
 from rtdenoise.runtime.kernels.fast_kernel import FastKernel
 
 
 def native_session(model: onnx.ModelProto) -> ort.InferenceSession:
     so = ort.SessionOptions()
-    assert fastops.register_fast_kernels(so, "native") == "native"
+    assert fast_bridge.register_fast_kernels(so, "native") == "native"
     return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
 
 
@@ -36,8 +38,8 @@ def kernel_apply_model(**attrs: int) -> onnx.ModelProto:
 
 
 def test_the_install_built_it_and_it_is_the_default():
-    assert native_ops.library_path() is not None, "pip install did not build the bridge"
-    assert native_ops.available() and fastops.default_bridge() == "native"
+    assert native.library_path() is not None, "pip install did not build the bridge"
+    assert native.available() and fast_bridge.default_bridge() == "native"
     assert Denoiser("demo:wskp").bridge == "native"
     assert Denoiser("demo:wskp", fast_kernels="extensions").bridge == "extensions"
     assert Denoiser("demo:wskp", fast_kernels=False).bridge == ""
@@ -86,10 +88,10 @@ def test_the_kernel_reads_and_writes_onnxruntimes_own_buffers(monkeypatch):
 )  # fmt: skip
 def test_a_call_that_breaks_the_spec_is_a_python_error(feeds, message):
     sess = native_session(kernel_apply_model())
-    with pytest.raises(fastops.KernelError, match=message):
-        with fastops.raise_kernel_errors():
+    with pytest.raises(fast_bridge.KernelError, match=message):
+        with fast_bridge.raise_kernel_errors():
             sess.run(None, feeds)
-    with fastops.raise_kernel_errors():  # the session still works afterwards
+    with fast_bridge.raise_kernel_errors():  # the session still works afterwards
         sess.run(None, {"image": feeds["image"], "kernel": np.ones((1, 9, 8, 8), np.float32)})
 
 
@@ -97,15 +99,15 @@ def test_a_node_without_a_declared_attribute_is_a_python_error():
     sess = native_session(kernel_apply_model(kernel_size=3))  # no dilation
     ones = np.ones((1, 9, 8, 8), np.float32)
     feeds = {"image": ones[:, :3].copy(), "kernel": ones}
-    with pytest.raises(fastops.KernelError, match="attribute is missing"):
-        with fastops.raise_kernel_errors():
+    with pytest.raises(fast_bridge.KernelError, match="attribute is missing"):
+        with fast_bridge.raise_kernel_errors():
             sess.run(None, feeds)
 
 
 def test_without_the_built_bridge_the_kernels_fall_back_with_one_warning(monkeypatch):
-    monkeypatch.setattr(native_ops, "_bridge", None)
-    monkeypatch.setattr(native_ops, "library_path", lambda: None)
-    monkeypatch.setattr(fastops, "_fallback_warned", False)
+    monkeypatch.setattr(native, "_bridge", None)
+    monkeypatch.setattr(native, "library_path", lambda: None)
+    monkeypatch.setattr(fast_bridge, "_fallback_warned", False)
     with pytest.warns(RuntimeWarning, match="native custom-op bridge unavailable.*was not built"):
         den = Denoiser("demo:wskp")
     assert den.bridge == "extensions" and den.fast_kernels
@@ -114,5 +116,48 @@ def test_without_the_built_bridge_the_kernels_fall_back_with_one_warning(monkeyp
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # said once per process
         assert Denoiser("demo:wskp").bridge == "extensions"
-    with pytest.raises(native_ops.BridgeError, match="was not built"):
+    with pytest.raises(native.BridgeError, match="was not built"):
         Denoiser("demo:wskp", fast_kernels="native")
+
+
+WITHOUT_EXTENSIONS = """
+import sys, warnings
+sys.modules["onnxruntime_extensions"] = None  # `import onnxruntime_extensions` now fails
+import numpy as np
+from rtdenoise.runtime import Denoiser
+from rtdenoise.runtime.bridge import native
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+if sys.argv[1] == "no-native":
+    native.library_path = lambda: None
+warnings.simplefilter("ignore")
+den = Denoiser("demo:wskp")
+frames = synthetic_frames(den.required_buffers, 3, 24, 40)
+np.save(sys.argv[2], np.stack([den.process(f) for f in frames]))
+print(den.bridge or "portable", "onnxruntime_extensions" in sys.modules and
+      sys.modules["onnxruntime_extensions"] is not None)
+"""
+
+
+@pytest.mark.parametrize("case", ["native", "no-native"])
+def test_without_onnxruntime_extensions(tmp_path, case: str) -> None:
+    """The native bridge needs no onnxruntime-extensions: blocked, the default Denoiser still
+    runs the fast kernels (the same numbers as here); without the native bridge either, the
+    portable bodies run."""
+    import subprocess
+    import sys
+
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+
+    out = tmp_path / "out.npy"
+    proc = subprocess.run(
+        [sys.executable, "-c", WITHOUT_EXTENSIONS, case, str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    expected_bridge = "native" if case == "native" else "portable"
+    assert proc.stdout.split() == [expected_bridge, "False"]
+    den = Denoiser("demo:wskp", fast_kernels="native" if case == "native" else False)
+    frames = synthetic_frames(den.required_buffers, 3, 24, 40)
+    np.testing.assert_array_equal(np.load(out), np.stack([den.process(f) for f in frames]))

@@ -17,7 +17,8 @@ from op_forms import RTOL, all_forms, assert_forms_agree, rel_err
 from rtdenoise.export import ops as eops
 from rtdenoise.models.ops import TORCH_OPS, exporting
 from rtdenoise.ops import SPECS, Arg, OpSpec, snake_case
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge as fast_bridge
+from rtdenoise.runtime.bridge import extensions
 from rtdenoise.runtime.kernels import KERNELS
 
 CASES = [
@@ -37,7 +38,7 @@ def test_every_spec_has_all_three_forms():
     assert SPECS, "no op specs found"
     assert set(TORCH_OPS) == set(SPECS), "torch forms"
     assert set(eops.ONNX_FORMS) == set(SPECS), "ONNX function bodies"
-    assert set(KERNELS) == set(SPECS) == set(fastops.FAST_OPS), "fast kernels"
+    assert set(KERNELS) == set(SPECS) == set(extensions.FAST_OPS), "fast kernels"
 
 
 @pytest.mark.parametrize("case", CASES, ids=[_id(c) for c in CASES])
@@ -81,11 +82,11 @@ def test_model_without_function_runs_only_with_the_fast_kernel(name):
     with pytest.raises(Exception, match=name):
         ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
     so = ort.SessionOptions()
-    fastops.register_fast_kernels(so)
+    fast_bridge.register_fast_kernels(so)
     sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
-    before = fastops.CALLS[name]
+    before = fast_bridge.CALLS[name]
     outs = sess.run(None, dict(zip(spec.input_names, inputs, strict=True)))
-    assert fastops.CALLS[name] == before + 1 and len(outs) == len(spec.outputs)
+    assert fast_bridge.CALLS[name] == before + 1 and len(outs) == len(spec.outputs)
     with torch.no_grad():
         ref = TORCH_OPS[name].reference(*[torch.from_numpy(x) for x in inputs], **attrs)
     refs = ref if isinstance(ref, tuple) else (ref,)

@@ -19,7 +19,7 @@ from rtdenoise.models.ops.cross_bilateral_filter import (
 )
 from rtdenoise.models.ops.cross_regression import cross_regression_reference
 from rtdenoise.ops import get_spec
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge as fast_bridge
 from rtdenoise.runtime.kernels import KERNELS
 
 
@@ -39,9 +39,9 @@ def every_form(op: str, inputs: list[np.ndarray], attrs: dict) -> dict[str, list
         outs = {"torch": [t.numpy() for t in ref(*map(torch.from_numpy, inputs), **attrs)]}
     feed = dict(zip(spec.input_names, inputs, strict=True))
     for name, bridge in (("portable", ""), ("ort_fast", "native"), ("ort_ext", "extensions")):
-        before = fastops.CALLS[op]
+        before = fast_bridge.CALLS[op]
         outs[name] = session(op, tuple(sorted(attrs.items())), bridge).run(None, feed)
-        assert fastops.CALLS[op] - before == (1 if bridge else 0), name
+        assert fast_bridge.CALLS[op] - before == (1 if bridge else 0), name
     outs["numba"] = list(KERNELS[op](*inputs, **attrs))
     return outs
 

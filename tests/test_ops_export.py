@@ -18,7 +18,7 @@ from rtdenoise.export.onnx_export import to_onnx
 from rtdenoise.models import ops as tops
 from rtdenoise.models.ops.adaptive_fusion import adaptive_fusion
 from rtdenoise.models.ops.kernel_apply import kernel_apply
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge as fast_bridge
 
 TOL = 1e-5
 
@@ -77,14 +77,14 @@ def test_ort_matches_torch_at_two_sizes(exported, fast):
     module, model = exported
     so = ort.SessionOptions()
     if fast:
-        fastops.register_fast_kernels(so)
+        fast_bridge.register_fast_kernels(so)
     sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(5)
     for h, w in [(20, 26), (32, 48)]:
         color = rng.random((1, 3, h, w), dtype=np.float32)
-        before = fastops.CALLS["KernelApply"]
+        before = fast_bridge.CALLS["KernelApply"]
         (out,) = sess.run(None, {"color": color})
-        assert fastops.CALLS["KernelApply"] - before == (2 if fast else 0)
+        assert fast_bridge.CALLS["KernelApply"] - before == (2 if fast else 0)
         with torch.no_grad():
             ref = module(torch.from_numpy(color)).numpy()
         assert out.shape == (1, 3, h, w)

@@ -20,7 +20,8 @@ from op_forms import RTOL, all_forms, assert_forms_agree, rel_err, session
 from rtdenoise.export import ops as eops
 from rtdenoise.models.ops.adaptive_fusion import adaptive_fusion
 from rtdenoise.models.ops.kernel_apply import kernel_apply
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge as fast_bridge
+from rtdenoise.runtime.bridge import extensions
 from rtdenoise.runtime.kernels import KERNELS
 
 # ----------------------------------------------------------------------------- KernelApply
@@ -190,17 +191,17 @@ def test_array_hook_installed_and_fast():
     """The result hook returns ndarrays (the library default builds a Python list)."""
     import onnxruntime_extensions
 
-    assert onnxruntime_extensions.__version__ in fastops.HOOK_VERSIONS
+    assert onnxruntime_extensions.__version__ in extensions.HOOK_VERSIONS
     so = ort.SessionOptions()
-    fastops.register_fast_kernels(so, "extensions")
-    assert fastops.hook_installed()
+    fast_bridge.register_fast_kernels(so, "extensions")
+    assert extensions.hook_installed()
     # the hook itself, on a declared op id
     from onnxruntime_extensions import _ocos
 
     (k_id,) = [k for k, o in _ocos.Opdef._odlist.items() if o.op_type == "rtdenoise::KernelApply"]
     img = np.ones((1, 1, 3, 3), np.float32)
     ker = np.full((1, 1, 3, 3), 2.0, np.float32)
-    rv = fastops._array_hook(k_id, [img, ker], {"kernel_size": "1", "dilation": "1"})
+    rv = extensions._array_hook(k_id, [img, ker], {"kernel_size": "1", "dilation": "1"})
     assert rv[0] == k_id and rv[1] == (1, 1, 3, 3)
     assert isinstance(rv[2], np.ndarray) and np.all(rv[2] == 2.0)
     # through ORT on a large output: faster than merely listing the values would be
@@ -224,7 +225,7 @@ def test_array_hook_installed_and_fast():
     assert t_ort < t_list, (t_ort, t_list)
 
 
-def test_fastops_import_and_run_without_torch(tmp_path):
+def test_bridge_import_and_run_without_torch(tmp_path):
     model = eops.single_op_model(
         "KernelApply",
         [[1, 3, 6, 7], [1, 9, 6, 7]],
@@ -237,9 +238,10 @@ def test_fastops_import_and_run_without_torch(tmp_path):
 import sys
 sys.modules["torch"] = None
 import numpy as np, onnxruntime as ort
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge as fast_bridge
+from rtdenoise.runtime.memory import tune_allocator
 so = ort.SessionOptions()
-fastops.register_fast_kernels(so)
+fast_bridge.register_fast_kernels(so)
 s = ort.InferenceSession({str(path)!r}, so, providers=["CPUExecutionProvider"])
 img = np.ones((1, 3, 6, 7), np.float32)
 ker = np.full((1, 9, 6, 7), 1.0 / 9, np.float32)
@@ -247,9 +249,9 @@ out = s.run(None, {{"image": img, "kernel": ker}})[0]
 assert abs(out - 1.0).max() < 1e-6, out
 assert sys.modules["torch"] is None
 assert not any(m.startswith("torch.") for m in sys.modules)
-assert fastops.tune_allocator()
+assert tune_allocator()
 assert abs(s.run(None, {{"image": img, "kernel": ker}})[0] - 1.0).max() < 1e-6
-print("ok", fastops.CALLS["KernelApply"])
+print("ok", fast_bridge.CALLS["KernelApply"])
 """
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr

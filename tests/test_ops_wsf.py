@@ -20,7 +20,7 @@ from rtdenoise.models.ops.kernel_fusion import kernel_fusion
 from rtdenoise.models.ops.weight_sharing_filter import weight_sharing_filter
 from rtdenoise.ops import get_spec
 from rtdenoise.ops.weight_sharing_filter import attrs_to_sizes, sizes_to_attrs
-from rtdenoise.runtime import fastops
+from rtdenoise.runtime import bridge as fast_bridge
 from rtdenoise.runtime.kernels import KERNELS
 
 FAN21 = {"size_min": 3, "size_step": 2, "count": 6}  # sizes 3, 5, ..., 13
@@ -308,15 +308,15 @@ def test_export_ort_matches_torch_at_two_sizes(exported, fast):
     module, model = exported
     so = ort.SessionOptions()
     if fast:
-        fastops.register_fast_kernels(so)
+        fast_bridge.register_fast_kernels(so)
     sess = ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
     rng = np.random.default_rng(10)
     for h, w in [(19, 26), (32, 45)]:
         color = (rng.random((1, 3, h, w)) * 10).astype(np.float32)
-        before = {op: fastops.CALLS[op] for op in ("WeightSharingFilter", "KernelFusion")}
+        before = {op: fast_bridge.CALLS[op] for op in ("WeightSharingFilter", "KernelFusion")}
         (out,) = sess.run(None, {"color": color})
         for op, n0 in before.items():
-            assert fastops.CALLS[op] - n0 == (1 if fast else 0), op
+            assert fast_bridge.CALLS[op] - n0 == (1 if fast else 0), op
         with torch.no_grad():
             ref = module(torch.from_numpy(color)).numpy()
         assert out.shape == (1, 3, h, w)

@@ -15,7 +15,7 @@ import pytest
 from rtdenoise.runtime import placement
 from rtdenoise.runtime.denoiser import Denoiser
 from rtdenoise.runtime.kernels.fast_kernel import FastKernel
-from rtdenoise.runtime.synthetic import synthetic_frames
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames
 
 CPUS = placement.allowed_cpus()
 multi_cpu = pytest.mark.skipif(len(CPUS) < 2, reason="needs thread affinity and two CPUs")

@@ -83,8 +83,8 @@ def test_any_frame_gives_a_finite_image_and_history(model, fast):
             assert np.isfinite(out).all() and (out >= 0).all()
             for k, v in b.items():
                 np.testing.assert_array_equal(v, given_arrays[k])
-            for pair in den._slots.values():
-                assert np.isfinite(pair[0].host).all()
+            for s in den.state_specs:
+                assert np.isfinite(den.state_value(s.name)).all()
             bad = np.zeros((h, w), bool)
             for name in den.required_buffers:
                 bad |= ~np.isfinite(b[name]).all(axis=0)

@@ -18,7 +18,7 @@ from rtdenoise.datagen.camera import Camera, pixel_centres, pixel_directions, pr
 from rtdenoise.datagen.features import camera_space_normals, motion_vectors, override_albedo
 from rtdenoise.datagen.render import RenderConfig, derive_seed, sanitize
 from rtdenoise.datagen.validate import psnr, tonemap, warp_gain_db, warp_previous, warp_report
-from rtdenoise.runtime.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
 from rtdenoise.shipped import sample_sequences
 
 HAS_MITSUBA = importlib.util.find_spec("mitsuba") is not None

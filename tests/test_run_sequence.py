@@ -1,4 +1,5 @@
-"""rtdenoise.runtime.run: the per-sequence job without the CLI (callbacks, backend contract)."""
+"""rtdenoise.runtime.sequences.run: the per-sequence job without the CLI (callbacks, backend
+contract)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,9 @@ import numpy as np
 import pytest
 
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.runtime.exr import read_exr, write_exr
-from rtdenoise.runtime.layouts import get_layout
-from rtdenoise.runtime.run import Job, run_sequence
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.layouts import get_layout
+from rtdenoise.runtime.sequences.run import Job, run_sequence
 
 H, W = 8, 10
 
@@ -38,13 +39,13 @@ class Recorder:
     def __init__(self, required: tuple[str, ...] | None = ("color", "albedo"), nan_at=()):
         if required is not None:
             self.required_buffers = required
-        self.calls: list[tuple[dict[str, np.ndarray], bool]] = []
+        self.calls: list[dict[str, np.ndarray]] = []
         self.nan_at = set(nan_at)
         self.resets = 0
         self.last: np.ndarray | None = None
 
-    def process(self, buffers, *, assume_finite=False):
-        self.calls.append(({k: v.copy() for k, v in buffers.items()}, assume_finite))
+    def process(self, buffers):
+        self.calls.append({k: v.copy() for k, v in buffers.items()})
         self.last = np.array(buffers["color"])
         if len(self.calls) - 1 in self.nan_at:
             self.last[:, 0, 0] = np.nan
@@ -54,7 +55,7 @@ class Recorder:
         self.resets += 1
 
 
-def test_backend_gets_only_its_buffers_sanitised_and_told_so(tmp_path):
+def test_backend_gets_only_its_buffers_sanitised(tmp_path):
     seq = tmp_path / "seq"
     seq.mkdir()
     frames = make_frames(seq)
@@ -71,10 +72,9 @@ def test_backend_gets_only_its_buffers_sanitised_and_told_so(tmp_path):
         on_warning=warnings.append,
     )
     assert backend.resets == 1 and len(advanced) == 3
-    assert [set(b) for b, _ in backend.calls] == [{"color", "albedo"}] * 3
-    assert all(assume for _, assume in backend.calls)
-    assert all(np.isfinite(b).all() for buffers, _ in backend.calls for b in buffers.values())
-    assert backend.calls[1][0]["albedo"][1, 2, 3] == 0
+    assert [set(b) for b in backend.calls] == [{"color", "albedo"}] * 3
+    assert all(np.isfinite(b).all() for buffers in backend.calls for b in buffers.values())
+    assert backend.calls[1]["albedo"][1, 2, 3] == 0
     assert [r["nonfinite"] for r in report["frames"]] == [0, 1, 0]
     assert warnings == [
         f"{frames[1]}: 1 pixels with NaN/Inf in albedo replaced",
@@ -94,7 +94,7 @@ def test_backend_without_required_buffers_gets_every_buffer(tmp_path):
     report = run_sequence(
         Job("s", frames, None, tmp_path / "out"), backend, get_layout("canonical"), {}
     )
-    assert set(backend.calls[0][0]) == {"color", "albedo", "depth"}
+    assert set(backend.calls[0]) == {"color", "albedo", "depth"}
     assert report["mean"] is None and [r["psnr"] for r in report["frames"]] == [None, None]
 
 
@@ -117,9 +117,9 @@ SCRIPT = textwrap.dedent(
     import json, sys
     sys.modules["torch"] = None  # any `import torch` now raises ImportError
     from pathlib import Path
-    import rtdenoise.runtime.run as run
-    from rtdenoise.runtime.backend import PassThrough
-    from rtdenoise.runtime.sequence import find_frames
+    import rtdenoise.runtime.sequences.run as run
+    from rtdenoise.runtime.sequences.backend import PassThrough
+    from rtdenoise.runtime.sequences.frames import find_frames
 
     seq, out = Path(sys.argv[1]), Path(sys.argv[2])
     report = run.run_sequence(run.Job("s", find_frames(seq), None, out), PassThrough(),

@@ -9,10 +9,11 @@ import numba
 import numpy as np
 import pytest
 
-from rtdenoise.runtime import fastops
-from rtdenoise.runtime.denoiser import ALLOW_SPINNING, Denoiser, kernel_threads
+from rtdenoise.runtime import Denoiser
+from rtdenoise.runtime import bridge as fast_bridge
 from rtdenoise.runtime.kernels.fast_kernel import FastKernel
-from rtdenoise.runtime.synthetic import synthetic_frames
+from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+from rtdenoise.runtime.session import ALLOW_SPINNING, kernel_thread_count
 
 MODEL = "demo:wskp"
 
@@ -62,9 +63,9 @@ def test_default_threads_leave_numba_alone(kernel_threads_seen: list[int]) -> No
 def test_numba_threads_are_per_calling_thread() -> None:
     """The context sets numba's (thread-local) count in this thread and restores it."""
     before = numba.get_num_threads()
-    with fastops.kernel_threads(1):
+    with fast_bridge.numba_threads(1):
         assert numba.get_num_threads() == 1
-    with fastops.kernel_threads(None):
+    with fast_bridge.numba_threads(None):
         assert numba.get_num_threads() == before
     assert numba.get_num_threads() == before
 
@@ -83,12 +84,12 @@ def test_ort_workers_do_not_spin_next_to_the_kernels() -> None:
 
 def test_serial_rule() -> None:
     """One numba thread below `serial_below` pixels (padded H x W), else `threads`."""
-    assert kernel_threads((255, 256), None, 256 * 256) == 1
-    assert kernel_threads((256, 256), None, 256 * 256) is None
-    assert kernel_threads((256, 256), 2, 256 * 256) == 2
-    assert kernel_threads((720, 1280), 3) == 3
-    assert kernel_threads((64, 64), 2) == 1  # the default threshold
-    assert kernel_threads((1, 1), 2, 0) == 2
+    assert kernel_thread_count((255, 256), None, 256 * 256) == 1
+    assert kernel_thread_count((256, 256), None, 256 * 256) is None
+    assert kernel_thread_count((256, 256), 2, 256 * 256) == 2
+    assert kernel_thread_count((720, 1280), 3) == 3
+    assert kernel_thread_count((64, 64), 2) == 1  # the default threshold
+    assert kernel_thread_count((1, 1), 2, 0) == 2
 
 
 def test_small_frames_run_serial_kernels(kernel_threads_seen: list[int]) -> None:

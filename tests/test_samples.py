@@ -11,8 +11,9 @@ import pytest
 
 from rtdenoise.models.data import ClipSampler, SequenceData, flip
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.runtime.exr import read_exr, write_exr
-from rtdenoise.runtime.samples import (
+from rtdenoise.runtime.sequences.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.frames import read_frame
+from rtdenoise.runtime.sequences.samples import (
     DEFAULT_SAMPLE_FEATURES,
     feature_channels,
     read_samples,
@@ -20,7 +21,6 @@ from rtdenoise.runtime.samples import (
     sample_count,
     samples_from_buffers,
 )
-from rtdenoise.runtime.sequence import read_frame
 
 FEATURES = DEFAULT_SAMPLE_FEATURES  # color, albedo, normal, depth: C = 10
 H, W = 6, 7
@@ -170,7 +170,7 @@ def test_renderer_writes_independent_samples(tmp_path):
 def test_sequence_plan_reads_samples_for_a_per_sample_model(tmp_path):
     """`plan_sequence` / `iter_sequence` with a model's buffers: the first frame's sample
     layers in every frame (a frame without them is refused by name), else S = 1."""
-    from rtdenoise.runtime.sequence import iter_sequence
+    from rtdenoise.runtime.sequences.frames import iter_sequence
     from rtdenoise.shipped import sample_sequences
 
     rng = np.random.default_rng(4)

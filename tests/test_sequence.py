@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import rtdenoise.runtime.sequence as sequence
+import rtdenoise.runtime.sequences.frames as sequence
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.runtime.exr import write_exr
-from rtdenoise.runtime.sequence import (
+from rtdenoise.runtime.sequences.exr import write_exr
+from rtdenoise.runtime.sequences.frames import (
     find_frames,
     find_reference,
     frame_number,

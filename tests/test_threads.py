@@ -72,18 +72,18 @@ def test_one_instance_shared_by_threads_serialises_calls():
     den = Denoiser("demo:wskp", threads=1)
     outs: list[np.ndarray] = []
     active, most = [0], [0]
-    run_bound = den._run_bound
+    run = den._run
 
     def watched(*args):  # widens the window a race would need, and counts overlaps
         active[0] += 1
         most[0] = max(most[0], active[0])
         time.sleep(0.005)
         try:
-            return run_bound(*args)
+            return run(*args)
         finally:
             active[0] -= 1
 
-    den._run_bound = watched
+    den._run = watched
 
     def work(frames):
         return lambda: outs.extend(den.process(f) for f in frames)

@@ -15,7 +15,7 @@ from rtdenoise.models.data import ClipSampler, load_sequence
 from rtdenoise.models.losses import sequence_loss, smape, temporal_smape
 from rtdenoise.models.registry import build_model
 from rtdenoise.models.train import TrainSettings, train, unroll
-from rtdenoise.runtime.exr import write_exr
+from rtdenoise.runtime.sequences.exr import write_exr
 
 TINY = {"widths": [8, 12], "kernel_size": 5, "refine_width": 8}
 INPUTS = ("color", "albedo", "normal", "depth", "motion")

@@ -3,8 +3,8 @@
 `Affinity.forward` reads like Isik21 Fig. 2:
 
 1. per-sample input (3.1): every sample of the pixel brings its features r_xyst (config
-   `sample_features`, canonical buffer names; runtime/samples.py); the pixel radiance L is the
-   mean of the samples' linear radiance;
+   `sample_features`, canonical buffer names; runtime/sequences/samples.py); the pixel
+   radiance L is the mean of the samples' linear radiance;
 2. per-sample embedding (3.2, eq. (1)): a pointwise FC net (`embed_layers` x `embed_width`,
    leaky ReLU) on every sample, averaged over the samples: e_t (1 x 1 convs + a mean, in ONNX
    Conv and ReduceMean over a dynamic S);
@@ -58,7 +58,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from rtdenoise.ops.affinity_filter import MAX_KERNEL_SIZE
-from rtdenoise.runtime.samples import (
+from rtdenoise.runtime.sequences.samples import (
     DEFAULT_SAMPLE_FEATURES,
     check_features,
     feature_channels,
@@ -121,12 +121,17 @@ class AffinityConfig(FamilyConfig):
             if not (k == 0 and name == "temporal_size") and (
                 k < 1 or k % 2 == 0 or k > MAX_KERNEL_SIZE
             ):
-                raise self.fail(f"{name} must be an odd integer in [1, 63], got {k}")
+                raise self.fail(f"{name} must be an odd integer in [1, {MAX_KERNEL_SIZE}], got {k}")
 
     @property
     def parameter_channels(self) -> int:
         """U-Net outputs: K x (f^k, a^k, c^k), b, lambda (Isik21 eq. (2))."""
         return self.kernels * (self.feature_dim + 2) + 2
+
+
+def _kernel_size_option(name: str, default: int, doc: str) -> RuntimeOption:
+    """A kernel size the runtime may change: an odd integer in [1, MAX_KERNEL_SIZE]."""
+    return RuntimeOption(name, default, doc, 1, MAX_KERNEL_SIZE, True)
 
 
 def _conv(c_in: int, c_out: int) -> nn.Conv2d:
@@ -269,17 +274,10 @@ class Affinity(DenoiserModel):
             StateSpec("geometry", 4),  # sample-mean normal and depth (validity test)
         )
         size_doc = "odd taps per side of every affinity kernel (Isik21 Fig. 7: 7..19)"
-        options = [RuntimeOption("kernel_size", config.kernel_size, size_doc, 1, 63, True)]
-        self.register_buffer(
-            "option_kernel_size", torch.tensor(float(config.kernel_size)), persistent=False
-        )
+        self.add_runtime_option(_kernel_size_option("kernel_size", config.kernel_size, size_doc))
         if config.temporal_size:
             doc = "odd taps per side of the temporal kernel"
-            options.append(RuntimeOption("temporal_size", config.temporal_size, doc, 1, 63, True))
-            self.register_buffer(
-                "option_temporal_size", torch.tensor(float(config.temporal_size)), persistent=False
-            )
-        self.runtime_options = tuple(options)
+            self.add_runtime_option(_kernel_size_option("temporal_size", config.temporal_size, doc))
         self._bandwidths: list[torch.Tensor] = []  # training: E a^2 + E b^2 per frame
 
     # -- 1. per-sample input ------------------------------------------------------------------

@@ -28,8 +28,6 @@ import torch
 from numba import njit, prange, uintp
 
 from rtdenoise.ops.affinity_filter import EPS
-from rtdenoise.runtime.kernels._cache import clear_if_sources_changed, kernel_sources
-from rtdenoise.runtime.kernels._common import exp_neg
 from rtdenoise.runtime.kernels.affinity_filter import (
     affinity_taps,
     apply_mask,
@@ -37,6 +35,8 @@ from rtdenoise.runtime.kernels.affinity_filter import (
     dist4,
     spatial_sums,
 )
+from rtdenoise.runtime.kernels.cache import clear_if_sources_changed, kernel_sources
+from rtdenoise.runtime.kernels.common import exp_neg
 
 from .export_mode import use_custom_op
 

@@ -2,7 +2,7 @@
 rtdenoise.ops). No torch.
 
 Importing this package imports every module, which registers each op's `FastKernel` in
-`KERNELS`; `rtdenoise.runtime.fastops` registers them all with ONNX Runtime. See
+`KERNELS`; `rtdenoise.runtime.bridge.extensions` registers them all with ONNX Runtime. See
 docs/architecture.md, "Adding an op".
 """
 
@@ -12,7 +12,7 @@ from pathlib import Path
 
 from rtdenoise.ops import import_submodules
 
-from ._cache import clear_if_sources_changed
+from .cache import clear_if_sources_changed
 from .fast_kernel import KERNELS, FastKernel, fast_kernel
 
 clear_if_sources_changed(Path(__file__).parent)  # before any kernel loads numba's cache

@@ -7,7 +7,7 @@ along the row:
 
 1. the squared feature distance, four feature channels per pass (`dist4`);
 2. the weight w = exp(-a ||f_p - f_q||^2), fused with the last four channels (`_weights4`,
-   `_common.exp_neg`: a polynomial exp that vectorises);
+   `common.exp_neg`: a polynomial exp that vectorises);
 3. w into the denominator, w times the neighbour into the numerator, three colour channels
    in one pass (`_accumulate3`; fusing 2 and 3 into one loop was slower: register spills).
 
@@ -26,7 +26,7 @@ from numba import njit, prange, uintp
 
 from rtdenoise.ops.affinity_filter import EPS, kernel_size_value
 
-from ._common import exp_neg
+from .common import exp_neg
 from .fast_kernel import fast_kernel
 
 _EPS = np.float32(EPS)

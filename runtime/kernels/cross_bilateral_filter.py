@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import exp_row
+from .common import exp_row
 from .fast_kernel import fast_kernel
 
 

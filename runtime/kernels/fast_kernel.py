@@ -6,7 +6,7 @@
 The driver receives the inputs as C-contiguous float32 arrays, already checked against the
 op's spec (rtdenoise.ops), then one preallocated float32 array per output (shapes from the
 spec's rule), then the int attributes as keywords; it fills the outputs in place. The
-resulting `FastKernel` is what `rtdenoise.runtime.fastops` registers with ONNX Runtime and
+resulting `FastKernel` is what `rtdenoise.runtime.bridge.extensions` registers with ONNX Runtime and
 what tests and benchmarks call directly. No torch here.
 """
 

@@ -2,7 +2,7 @@
 
 out[n, c] = sum_i softmax_i(logits[n])[i] * images[n, i*C + c],  C = channels(images) / S.
 One output row per parallel iteration, every step a contiguous row operation: max over S,
-exponentials of (logit - max) <= 0 with the vectorisable polynomial exp of `_common`,
+exponentials of (logit - max) <= 0 with the vectorisable polynomial exp of `common`,
 normalisation, then one multiply-add per (i, c).
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import add_into, exp_nonpositive, times_pow2
+from .common import add_into, exp_nonpositive, times_pow2
 from .fast_kernel import fast_kernel
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ._common import exp_neg
+from .common import exp_neg
 from .fast_kernel import fast_kernel
 from .kernel_apply import _fma_row, pad_source_rows
 

@@ -26,7 +26,7 @@ from numba import njit, prange
 
 from rtdenoise.ops.weight_sharing_filter import attrs_to_sizes
 
-from ._common import add_into
+from .common import add_into
 from .fast_kernel import fast_kernel
 
 STRIP_ROWS = 96  # output rows per parallel task (rounded to whole blocks of s)

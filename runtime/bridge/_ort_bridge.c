@@ -5,7 +5,7 @@
  * (rtd_declare_op) to the "rtdenoise" domain. Each op's compute reads ORT's input tensors in
  * place, asks Python for the output shapes (the op spec's rule), lets ORT allocate the outputs
  * and hands Python the raw input and output buffers, on which the numba driver runs as numpy
- * views: no input or output is copied (runtime/native_ops.py is the Python side).
+ * views: no input or output is copied (runtime/bridge/native.py is the Python side).
  *
  * Only the stable part of ONNX Runtime's C ABI is used: OrtApiBase.GetApi, version-1 entries
  * of the OrtApi function table (append-only, so their positions never change) and the
@@ -14,7 +14,7 @@
  * registers (an OrtStatus round trip).
  *
  * Failures never unwind through ONNX Runtime: Python's callbacks catch every exception and
- * record it (runtime/fastops.py raises it after the run); the outputs are then NaN or, when
+ * record it (runtime/bridge/extensions.py raises it after the run); the outputs are then NaN or, when
  * even their shapes are unknown, empty.
  */
 
@@ -356,7 +356,7 @@ EXPORT OrtStatusT *RegisterCustomOps(void *options, const ApiBase *base) {
     api = (const ApiFn *)base->GetApi(API_VERSION);
     if (!api) return NULL; /* cannot even say why: ORT then fails on the unknown ops */
     if (!api_positions_ok()) return error_status("rtdenoise bridge: unexpected OrtApi layout");
-    if (n_ops == 0) return error_status("rtdenoise bridge: no op declared (runtime/native_ops.py)");
+    if (n_ops == 0) return error_status("rtdenoise bridge: no op declared (runtime/bridge/native.py)");
     void *domain = NULL; /* one per registration, kept for the process (sessions may outlive it) */
     OrtStatusT *status = FN(API_CREATE_CUSTOM_OP_DOMAIN, OrtStatusT *(*)(const char *, void **))(
         "rtdenoise", &domain);
@@ -372,6 +372,6 @@ EXPORT OrtStatusT *RegisterCustomOps(void *options, const ApiBase *base) {
  * imported. */
 PyMODINIT_FUNC PyInit__ort_bridge(void) {
     PyErr_SetString(PyExc_ImportError,
-                    "rtdenoise.runtime._ort_bridge is loaded by ONNX Runtime, not imported");
+                    "rtdenoise.runtime.bridge._ort_bridge is loaded by ONNX Runtime, not imported");
     return NULL;
 }

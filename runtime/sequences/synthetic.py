@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .contract import SAMPLES
+from ..contract import SAMPLES
 from .samples import DEFAULT_SAMPLE_FEATURES
 
 

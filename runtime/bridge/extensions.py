@@ -1,4 +1,7 @@
-"""Register the fast (numba) kernels with ONNX Runtime through onnxruntime-extensions.
+"""The onnxruntime-extensions bridge: the fast (numba) kernels as its Python custom ops.
+
+Imported only when this bridge is chosen (`rtdenoise.runtime.bridge`): the native bridge, the
+default, needs no onnxruntime-extensions.
 
 Each `rtdenoise.runtime.kernels.KERNELS` entry becomes a Python custom op
 `rtdenoise::<Name>` (float32 inputs and outputs, int64 attributes, all from the op's spec). A
@@ -20,8 +23,8 @@ Pitfalls handled here (research-notes "Custom ops"):
   rethrows it across ONNX Runtime's C boundary): Ctrl-C while a kernel runs, an out-of-memory,
   a kernel's own error. So nothing leaves: every op body and the result hook catch every
   exception (KeyboardInterrupt included), return NaN outputs of the right shapes and record the
-  exception for the calling thread; `raise_kernel_errors()` (which `Denoiser` wraps around
-  every run) raises it there once the run has returned (docs/reliability.md).
+  exception for the calling thread (`calls.py`); `raise_kernel_errors()` (which `Denoiser`
+  wraps around every run) raises it there once the run has returned (docs/reliability.md).
 No torch here.
 """
 
@@ -29,24 +32,15 @@ from __future__ import annotations
 
 import sys
 import warnings
-from collections.abc import Iterator, Sequence
-from contextlib import AbstractContextManager, contextmanager, nullcontext
+from collections.abc import Sequence
 
 import numpy as np
 import onnxruntime as ort
 
 from rtdenoise.ops import DOMAIN
 
-from .kernel_calls import (  # noqa: F401  (re-exported)
-    CALLS,
-    KernelError,
-    _nan_outputs,
-    _record,
-    raise_kernel_errors,
-    take_kernel_error,
-)
-from .kernels import KERNELS, FastKernel
-from .memory import tune_allocator  # noqa: F401  (re-exported)
+from ..kernels import KERNELS, FastKernel
+from .calls import CALLS, nan_outputs, record_failure
 
 
 def _import_extensions_without_torch():
@@ -112,7 +106,7 @@ def _hook_failure(k_id: int, exc: BaseException) -> tuple:
         count = len(opdef._nativedef.output_types) if opdef is not None else 1
     except BaseException:
         name, count = f"op {k_id}", 1
-    _record(exc, str(name))
+    record_failure(exc, str(name))
     empty = np.zeros((0,), np.float32)
     return (k_id, *[x for _ in range(count) for x in ((0,), empty)])
 
@@ -156,8 +150,8 @@ def _declare(kernel: FastKernel) -> None:
             CALLS[kernel.name] += 1
             return kernel(*inputs, **attrs)
         except BaseException as exc:  # leaving the op would abort the process
-            _record(exc, kernel.name)
-            outs = _nan_outputs(_output_shapes(kernel, inputs, attrs))
+            record_failure(exc, kernel.name)
+            outs = nan_outputs(_output_shapes(kernel, inputs, attrs))
             return outs if len(outs) > 1 else outs[0]
 
     body.__name__ = f"rtdenoise_{kernel.name}"
@@ -174,84 +168,10 @@ for _kernel in KERNELS.values():
     _declare(_kernel)
 
 
-def kernel_threads(threads: int | None) -> AbstractContextManager[None]:
-    """Run this thread's kernels with `threads` numba threads (None: leave numba's setting).
-
-    numba's thread count belongs to the calling thread, and ONNX Runtime runs a Python custom
-    op on the thread that called `session.run`: so the count is set around each run, on the
-    thread that runs it, capped at numba's pool size (NUMBA_NUM_THREADS), and restored after.
-    """
-    return nullcontext() if threads is None else _numba_threads(threads)
+def register(so: ort.SessionOptions) -> None:
+    """Make sessions created with `so` run the rtdenoise ops through onnxruntime-extensions."""
+    install_array_hook()
+    so.register_custom_ops_library(get_library_path())
 
 
-@contextmanager
-def _numba_threads(threads: int) -> Iterator[None]:
-    import numba
-
-    before = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
-
-
-BRIDGES = ("native", "extensions")
-
-
-_fallback_warned = False
-
-
-def default_bridge() -> str:
-    """ "native" when the compiled bridge loads (runtime/native_ops.py), else "extensions",
-    saying once per process why (the copies cost ~20 % of a 720p frame)."""
-    global _fallback_warned
-    from . import native_ops
-
-    reason = native_ops.unavailable_reason()
-    if reason is None:
-        return "native"
-    if not _fallback_warned:
-        _fallback_warned = True
-        warnings.warn(
-            f"native custom-op bridge unavailable ({reason}): the fast kernels run through "
-            "onnxruntime-extensions, which copies every input and output (about 20 % slower "
-            "at 720p); reinstall with a C compiler to build it",
-            RuntimeWarning,
-            stacklevel=3,
-        )
-    return "extensions"
-
-
-def register_fast_kernels(so: ort.SessionOptions, bridge: str | None = None) -> str:
-    """Make sessions created with `so` run the rtdenoise ops with the numba kernels, through
-    `bridge`: "native" (no copies; the default where it was built) or "extensions"
-    (onnxruntime-extensions' Python ops, which copy every input and output). Returns the
-    bridge used."""
-    bridge = bridge or default_bridge()
-    if bridge == "native":
-        from . import native_ops
-
-        native_ops.register(so)
-    elif bridge == "extensions":
-        install_array_hook()
-        so.register_custom_ops_library(get_library_path())
-    else:
-        raise ValueError(f"unknown fast-kernel bridge {bridge!r}; expected one of {BRIDGES}")
-    return bridge
-
-
-__all__ = [
-    "BRIDGES",
-    "CALLS",
-    "FAST_OPS",
-    "KernelError",
-    "hook_installed",
-    "install_array_hook",
-    "kernel_threads",
-    "raise_kernel_errors",
-    "default_bridge",
-    "register_fast_kernels",
-    "take_kernel_error",
-    "tune_allocator",
-]
+__all__ = ["FAST_OPS", "HOOK_VERSIONS", "hook_installed", "install_array_hook", "register"]

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .metrics import SequenceMetrics
 from .synthetic import synthetic_frames
 

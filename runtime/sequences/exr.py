@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
+from ..errors import InputError
 from .atomic import atomic_path
-from .errors import InputError
 
 
 def _part_name(part: object) -> str | None:

@@ -12,7 +12,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 
 @runtime_checkable
@@ -24,14 +24,8 @@ class Backend(Protocol):
     (a `runtime.guard.GuardReport`, as `Denoiser` has) gets what it reports warned per frame.
     """
 
-    def process(
-        self, buffers: Mapping[str, np.ndarray], *, assume_finite: bool = False
-    ) -> np.ndarray:
-        """Denoise one frame: canonical (C, H, W) buffers -> (3, H, W) linear RGB.
-
-        assume_finite: the caller has already replaced NaN/Inf in `buffers` (a `Frame` from
-        `read_frame` / `SequencePlan.read`), so the backend may skip its own scan.
-        """
+    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Denoise one frame: canonical (C, H, W) buffers -> (3, H, W) linear RGB."""
         ...
 
     def reset(self) -> None:
@@ -45,9 +39,7 @@ class PassThrough:
     name = "none"
     required_buffers: tuple[str, ...] = ("color",)
 
-    def process(
-        self, buffers: Mapping[str, np.ndarray], *, assume_finite: bool = False
-    ) -> np.ndarray:
+    def process(self, buffers: Mapping[str, np.ndarray]) -> np.ndarray:
         """A copy of `color`, NaN/Inf included (there is no model to protect)."""
         if "color" not in buffers:
             raise InputError("pass-through needs the 'color' buffer")
@@ -79,7 +71,7 @@ def load_backend(
             raise InputError(f"--model none has no run-time options ({', '.join(options)})")
         return PassThrough()
     try:
-        from .denoiser import Denoiser
+        from ..denoiser import Denoiser
     except ImportError as exc:
         raise InputError(f"the ONNX backend is not available ({exc}); use --model none") from exc
     return Denoiser(

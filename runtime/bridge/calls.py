@@ -1,6 +1,6 @@
 """What the fast kernels did inside ONNX Runtime: calls per op, and each thread's first failure.
 
-Both custom-op bridges (`native_ops`, the default, and onnxruntime-extensions in `fastops`)
+Both custom-op bridges (`native`, the default, and `extensions`)
 count their calls here and record a kernel's exception instead of letting it leave the op: an
 exception unwinding through ONNX Runtime's C boundary aborts the process. `raise_kernel_errors`
 (which `Denoiser` wraps around every run) raises it once the run has returned. No torch here.
@@ -27,7 +27,7 @@ class KernelError(RuntimeError):
 _pending = threading.local()
 
 
-def _record(exc: BaseException, op: str) -> None:
+def record_failure(exc: BaseException, op: str) -> None:
     """Remember the first failure of this thread's run (never raises)."""
     try:
         if getattr(_pending, "error", None) is None:
@@ -36,7 +36,7 @@ def _record(exc: BaseException, op: str) -> None:
         pass
 
 
-def _nan_outputs(shapes: Sequence[tuple[int, ...]]) -> tuple[np.ndarray, ...]:
+def nan_outputs(shapes: Sequence[tuple[int, ...]]) -> tuple[np.ndarray, ...]:
     """NaN arrays of `shapes` (zero-size ones if even that fails): what a failed op returns."""
     try:
         return tuple(np.full(s, np.nan, np.float32) for s in shapes)

@@ -8,8 +8,8 @@ as numpy views: nothing is copied, unlike onnxruntime-extensions' Python ops (wh
 input and output: ~200-300 ms per 720p frame of the light demos, benchmarks/README.md).
 
 The output shapes come from the op's spec (`_shapes`), checked as `FastKernel` checks a call.
-Nothing leaves a callback: a failure is recorded (`kernel_calls`) and its outputs are NaN (or
-empty when their shapes are unknown); `kernel_calls.raise_kernel_errors` raises it after the
+Nothing leaves a callback: a failure is recorded (`calls`) and its outputs are NaN (or
+empty when their shapes are unknown); `calls.raise_kernel_errors` raises it after the
 run, as for the other bridge. No torch here.
 """
 
@@ -24,11 +24,11 @@ from ctypes import POINTER, c_char_p, c_int, c_int64, c_void_p
 import numpy as np
 import onnxruntime as ort
 
-from .kernel_calls import CALLS, _record
-from .kernels import KERNELS, FastKernel
+from ..kernels import KERNELS, FastKernel
+from .calls import CALLS, record_failure
 
 MAX_RANK = 8  # as in _ort_bridge.c
-LIBRARY = "rtdenoise.runtime._ort_bridge"
+LIBRARY = "rtdenoise.runtime.bridge._ort_bridge"
 
 _Dims = POINTER(c_int64)
 _SHAPE = ctypes.CFUNCTYPE(c_int, c_int, c_int, _Dims, _Dims, _Dims, _Dims, _Dims)
@@ -107,7 +107,7 @@ class _Bridge:
                     out_dims[o * MAX_RANK + d] = int(size)
             return 0
         except BaseException as exc:  # leaving the callback would abort the process
-            _record(exc, kernel.name)
+            record_failure(exc, kernel.name)
             return 1
 
     def _compute(
@@ -122,7 +122,7 @@ class _Bridge:
             kernel.compute(inputs, outs, self._attrs(kernel, attrs))
             return 0
         except BaseException as exc:  # leaving the callback would abort the process
-            _record(exc, kernel.name)
+            record_failure(exc, kernel.name)
             try:
                 for out in outs:
                     out.fill(np.nan)
@@ -133,7 +133,7 @@ class _Bridge:
     def _fail(self, op, message) -> None:
         try:
             name = self.kernels[op].name if 0 <= op < len(self.kernels) else f"op {op}"
-            _record(RuntimeError((message or b"").decode(errors="replace")), name)
+            record_failure(RuntimeError((message or b"").decode(errors="replace")), name)
         except BaseException:
             pass
 

@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..errors import InputError
 from .backend import Backend, load_backend
-from .errors import InputError
 from .layouts import Layout
 from .run import Job, _targets, online_summary, run_sequence
 

@@ -4,8 +4,8 @@ Torch-free. The caller presents: it hears of progress and warnings through callb
 formats the report (a dict, the metrics JSON of one sequence) as it likes.
 
 Per frame the lean path does: read only the channels the backend needs (resolved once per
-sequence from the headers), one NaN/Inf pass per buffer (in the reader; the backend is told
-with `assume_finite=True`; a `Denoiser` still guards ranges and outliers), process, one NaN/Inf
+sequence from the headers), one NaN/Inf pass per buffer (in the reader; a `Denoiser` guards
+every buffer again: NaN/Inf, ranges and outliers), process, one NaN/Inf
 check of the output, quantise once (half by default) and write that array; the float32 view of
 exactly that array is what is scored and previewed.
 
@@ -27,25 +27,25 @@ from typing import Any
 
 import numpy as np
 
+from ..contract import SAMPLES
+from ..errors import InputError
+from ..guard import nonfinite_pixels
 from .atomic import check_writable, temp_files_of
 from .backend import Backend
-from .contract import SAMPLES
-from .errors import InputError
 from .exr import read_exr
-from .layouts import Layout
-from .metrics import SequenceMetrics
-from .preview import write_png
-from .samples import sample_features_of
-from .sequence import (
+from .frames import (
     frame_number,
     match_references,
-    nonfinite_pixels,
     plan_sequence,
     quantize_output,
     reference_pixels,
     scan_reference,
     write_rgb,
 )
+from .layouts import Layout
+from .metrics import SequenceMetrics
+from .preview import write_png
+from .samples import sample_features_of
 
 METRIC_KEYS = ("psnr", "ssim", "smape", "relmse")
 MAX_WARNINGS = 10  # NaN/Inf and guard warnings per sequence, then one line with the rest
@@ -232,7 +232,7 @@ def run_sequence(
             for j in range(max(segment, i - RESUME_WARMUP), i):
                 with reading():
                     warm = plan.read(job.frames[j], index=j)
-                backend.process(warm.buffers, assume_finite=True)
+                backend.process(warm.buffers)
         t0 = time.perf_counter()
         with reading():
             frame = plan.read(path, index=i)
@@ -242,7 +242,7 @@ def run_sequence(
             with reading():
                 view = _read_rgb(out_path)
         else:
-            out = np.asarray(backend.process(frame.buffers, assume_finite=True), dtype=np.float32)
+            out = np.asarray(backend.process(frame.buffers), dtype=np.float32)
             fed = i
             if out.ndim == 4 and out.shape[0] == 1:
                 out = out[0]

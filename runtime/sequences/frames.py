@@ -20,7 +20,7 @@ and motion) and counted per frame (pixels with any non-finite value in any buffe
 nothing downstream sees them; `Denoiser.process` guards the buffers again (ranges, outliers).
 
 Per-sample input: asking for the rank-5 `samples` buffer (among `buffers`) reads the
-`sample<i>.*` layers of the per-sample features `sample_features` (runtime/samples.py; the
+`sample<i>.*` layers of the per-sample features `sample_features` (runtime/sequences/samples.py; the
 default set when not given), or makes S = 1 from the pixel buffers when a file has none.
 """
 
@@ -35,10 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .contract import BUFFER_CHANNELS, SAMPLES
-from .errors import InputError
+from ..contract import BUFFER_CHANNELS, HALF_MAX, SAMPLES
+from ..errors import InputError
+from ..guard import replace_nonfinite
 from .exr import read_exr, read_exr_header, write_exr
-from .guard import replace_nonfinite
 from .layouts import Layout, check_channels, get_layout, resolve_channels, stack_buffers
 from .samples import DEFAULT_SAMPLE_FEATURES, SamplePlan, plan_samples, samples_from_buffers
 
@@ -224,17 +224,6 @@ def match_references(
     if len(frames) == 1 and len(index) == 1:
         return [next(iter(index.values()))]
     return [index.get(frame_number(p)) for p in frames]
-
-
-def nonfinite_pixels(a: np.ndarray) -> np.ndarray | None:
-    """The (H, W) mask of the pixels of a (C, H, W) (or (S, C, H, W)) float array with NaN/Inf
-    in any channel, or None when every value is finite: then it costs one pass (a sum), the
-    common case."""
-    with np.errstate(over="ignore", invalid="ignore"):  # a finite sum may overflow: recheck
-        if np.isfinite(a.sum()):
-            return None
-    bad = ~np.isfinite(a)
-    return bad.reshape(-1, *bad.shape[-2:]).any(axis=0) if bad.any() else None
 
 
 def _replace_nonfinite(buffers: dict[str, np.ndarray]) -> tuple[int, tuple[str, ...]]:
@@ -516,9 +505,6 @@ def iter_sequence(
     plan = plan_sequence(paths, layout, overrides, buffers=buffers, sample_features=sample_features)
     for i, p in enumerate(paths):
         yield plan.read(p, index=i)
-
-
-HALF_MAX = 65504.0
 
 
 def quantize_output(rgb: np.ndarray, half: bool = True) -> np.ndarray:

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .contract import BUFFER_CHANNELS, RADIANCE_BUFFERS, SCREEN_XY_BUFFERS
-from .errors import InputError
+from ..contract import BUFFER_CHANNELS, RADIANCE_BUFFERS, SCREEN_XY_BUFFERS
+from ..errors import InputError
 from .layouts import LAYOUTS
 
 SAMPLE_FEATURES_KEY = "sample_features"

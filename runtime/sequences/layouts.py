@@ -45,8 +45,8 @@ import numpy as np
 
 from rtdenoise.shipped import LAYOUTS_DIR
 
-from .contract import BUFFER_CHANNELS
-from .errors import InputError
+from ..contract import BUFFER_CHANNELS
+from ..errors import InputError
 
 if sys.version_info >= (3, 11):
     import tomllib

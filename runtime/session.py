@@ -1,0 +1,246 @@
+"""The ONNX Runtime session a `Denoiser` drives: model source, execution providers, session
+options, threads, the CPU arena and the fast-kernel bridge (docs/architecture.md, "Runtime").
+
+`open_session` makes the options (threads, spinning, thread placement, a shared arena), registers
+the fast kernels through the bridge asked for (`rtdenoise.runtime.bridge`; the portable bodies,
+with one warning, where numba is missing), loads the model and checks that every provider asked
+for started. `kernel_thread_count` is the rule for the fast kernels' threads on a frame size.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from .contract import Contract, ContractError
+from .errors import InputError
+from .memory import share_cpu_arena
+from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities
+
+ModelSource = str | os.PathLike | bytes
+Provider = str | tuple[str, dict[str, Any]]
+
+_PROVIDER_ALIASES = {
+    "cpu": "CPUExecutionProvider",
+    "cuda": "CUDAExecutionProvider",
+    "tensorrt": "TensorrtExecutionProvider",
+    "trt": "TensorrtExecutionProvider",
+    "dml": "DmlExecutionProvider",
+    "directml": "DmlExecutionProvider",
+    "coreml": "CoreMLExecutionProvider",
+    "openvino": "OpenVINOExecutionProvider",
+}
+# Execution provider -> OrtValue device type used to keep the state on the device.
+_DEVICE_OF_PROVIDER = {
+    "CUDAExecutionProvider": "cuda",
+    "TensorrtExecutionProvider": "cuda",
+    "DmlExecutionProvider": "dml",
+}
+# The fast kernels run on one numba thread on frames below this many pixels (padded H x W):
+# there numba's parallel regions (a wake-up and a barrier each; on a busy machine a scheduler
+# time slice) cost more than they save (docs/architecture.md, "Threads").
+SERIAL_KERNELS_BELOW = 256 * 256
+ALLOW_SPINNING = "session.intra_op.allow_spinning"  # ORT session config key, "0" or "1"
+
+
+def kernel_thread_count(
+    padded: tuple[int, int], threads: int | None, serial_below: int = SERIAL_KERNELS_BELOW
+) -> int | None:
+    """numba threads for the fast kernels on frames of `padded` (H, W): one below
+    `serial_below` pixels, else `threads` (None: numba's own setting)."""
+    return 1 if padded[0] * padded[1] < serial_below else threads
+
+
+def resolve_model(spec: str | os.PathLike) -> Path:
+    """Path of a model given as `demo:<family>` (a shipped demo) or a plain .onnx path."""
+    text = os.fspath(spec)
+    if text.startswith("demo:"):
+        from rtdenoise.shipped import demo_model
+
+        try:
+            return demo_model(text[len("demo:") :], ".onnx")
+        except FileNotFoundError as exc:
+            raise InputError(str(exc)) from None
+    path = Path(text).expanduser()
+    if not path.exists():
+        raise InputError(f"{path}: no such model file")
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected an .onnx model file")
+    if path.suffix.lower() in (".pt", ".pth"):
+        raise InputError(f"{path}: is a PyTorch checkpoint; export it first (denoise-export)")
+    return path
+
+
+def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provider]:
+    """Execution providers for the session: aliases expanded, availability checked, CPU last."""
+    if providers is None:
+        return ["CPUExecutionProvider"]
+    if isinstance(providers, str):
+        providers = [providers]
+    available = ort.get_available_providers()
+    resolved: list[Provider] = []
+    for item in providers:
+        name, options = item if isinstance(item, tuple) else (item, None)
+        name = _PROVIDER_ALIASES.get(name.lower(), name)
+        if name not in available:
+            raise InputError(
+                f"execution provider {name!r} is not available in this onnxruntime "
+                f"{ort.__version__} (available: {', '.join(available)}); CUDA/TensorRT need "
+                "the onnxruntime-gpu package, DirectML onnxruntime-directml"
+            )
+        resolved.append((name, options) if options else name)
+    if "CPUExecutionProvider" not in provider_names(resolved):
+        resolved.append("CPUExecutionProvider")
+    return resolved
+
+
+def provider_names(providers: Sequence[Provider]) -> list[str]:
+    """The names of `providers` (without their options)."""
+    return [p if isinstance(p, str) else p[0] for p in providers]
+
+
+def register_fast_kernels(options: ort.SessionOptions, bridge: str | None) -> str:
+    """Register the fast kernels of the rtdenoise custom ops through `bridge` (None: the best
+    available); the bridge used, or "" with a warning where numba (or, for the extensions
+    bridge, onnxruntime-extensions) is not installed: the portable bodies run then."""
+    try:
+        from . import bridge as bridges
+
+        return bridges.register_fast_kernels(options, bridge)
+    except ModuleNotFoundError as exc:
+        if exc.name and exc.name.split(".")[0] in ("onnxruntime_extensions", "numba"):
+            warnings.warn(
+                f"fast kernels unavailable ({exc}): the custom ops run their portable ONNX "
+                "bodies, slower; numba and onnxruntime-extensions have wheels for CPython "
+                "3.10-3.13 on Linux x86_64/aarch64, macOS arm64 and Windows x64",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+            return ""
+        raise
+    except ValueError as exc:  # an unknown bridge name
+        raise InputError(f"fast_kernels={bridge!r}: {exc}") from None
+
+
+@dataclass
+class Session:
+    """A loaded session and how it runs: the bridge of its fast kernels ("" for none), its
+    thread settings, whether it shares the process's CPU arena, where bound state lives."""
+
+    session: ort.InferenceSession
+    bridge: str
+    threads: int | None
+    pin_threads: bool
+    shared_arena: bool
+    device: tuple[str, int] | None  # None: host memory
+
+
+def open_session(
+    payload: str | bytes,
+    source: str,
+    *,
+    fast_kernels: bool | str,
+    threads: int | None,
+    pin_threads: bool | None,
+    spinning: bool | None,
+    providers: Sequence[Provider] | str | None,
+    shared_arena: bool,
+) -> Session:
+    """Load `payload` (a path or the model bytes; `source` names it in errors) with the
+    options `Denoiser` documents."""
+    options = ort.SessionOptions()
+    # Warnings at load are about graph internals (e.g. run-time option initializers that
+    # are graph inputs by design: "will not be treated as constant"); errors still show.
+    options.log_severity_level = 3
+    if threads is not None:
+        if threads < 1:
+            raise InputError(f"threads must be >= 1, got {threads}")
+        options.intra_op_num_threads = threads
+        affinities = ort_thread_affinities(threads, allowed_cpus()) if pin_threads else None
+        if affinities:  # ORT places its workers itself only when it picks the count
+            options.add_session_config_entry(INTRA_OP_AFFINITIES, affinities)
+    bridge = ""
+    if fast_kernels:
+        bridge = register_fast_kernels(
+            options, fast_kernels if isinstance(fast_kernels, str) else None
+        )
+    if spinning is None and bridge:
+        spinning = False  # idle ORT workers would spin while a kernel needs the cores
+    if spinning is not None:
+        options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
+    wanted = resolve_providers(providers)
+    names = provider_names(wanted)
+    shared = shared_arena and names == ["CPUExecutionProvider"] and share_cpu_arena(options)
+    try:
+        session = ort.InferenceSession(payload, options, providers=wanted)
+    except Exception as exc:  # onnxruntime's pybind errors derive from Exception only
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{source}: ONNX Runtime cannot load the model: {first}") from exc
+    got = session.get_providers()
+    for name in names:
+        if name not in got:
+            raise InputError(
+                f"{source}: execution provider {name} failed to start (see ONNX "
+                f"Runtime's log); the session would run on {', '.join(got)}"
+            )
+    return Session(
+        session=session,
+        bridge=bridge,
+        threads=threads,
+        pin_threads=threads is None if pin_threads is None else pin_threads,
+        shared_arena=shared,
+        device=_state_device(session, got),
+    )
+
+
+def _state_device(session: ort.InferenceSession, providers: list[str]) -> tuple[str, int] | None:
+    """Where bound state lives: None for host memory, else (device type, device id)."""
+    for name in providers:
+        device = _DEVICE_OF_PROVIDER.get(name)
+        if device is None:
+            continue
+        options = session.get_provider_options().get(name, {})
+        device_id = int(options.get("device_id", 0) or 0)
+        try:
+            ort.OrtValue.ortvalue_from_numpy(np.zeros(1, np.float32), device, device_id)
+        except Exception as exc:
+            warnings.warn(
+                f"cannot allocate state on {device}:{device_id} ({exc}); keeping it on host",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+            return None
+        return device, device_id
+    return None
+
+
+def option_values(
+    session: ort.InferenceSession, contract: Contract, overrides: Mapping[str, float], source: str
+) -> dict[str, tuple[np.ndarray, ort.OrtValue]]:
+    """name -> (value as a float32 scalar, its OrtValue) for every overridden run-time option;
+    InputError for an option the model lacks or a value it refuses."""
+    known = {o.name: o for o in contract.options}
+    inputs = {i.name for i in session.get_overridable_initializers()}
+    values = {}
+    for name, value in overrides.items():
+        option = known.get(name)
+        if option is None:
+            raise InputError(
+                f"{source}: model {contract.family!r} has no run-time option {name!r} "
+                f"(options: {', '.join(known) or 'none'})"
+            )
+        if option.input_name not in inputs:
+            raise ContractError(
+                f"{source}: option {name!r} is declared but {option.input_name!r} is "
+                "not an overridable initializer of the graph"
+            )
+        array = np.array(option.check(value), np.float32)
+        values[name] = (array, ort.OrtValue.ortvalue_from_numpy(array))
+    return values
