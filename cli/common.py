@@ -56,6 +56,34 @@ VersionOption = Annotated[
 ]
 
 
+FamilyModuleOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--family-module",
+        metavar="MODULE",
+        help="Import MODULE (a dotted name found from this folder too, or a .py file) first, "
+        "for a denoiser family defined outside rtdenoise and not installed as a package; "
+        "repeatable (installed packages join through the 'rtdenoise.families' entry points).",
+    ),
+]
+
+
+def load_family_modules(modules: list[str] | None) -> None:
+    """Import every `--family-module` (models.registry.load_family_module); needs torch."""
+    from rtdenoise.models.registry import load_family_module
+
+    for module in modules or []:
+        load_family_module(module)
+
+
+def family_names() -> list[str]:
+    """The families the installed entry points declare, found without importing them (so
+    without torch): `--help` lists them even where the train extra is missing."""
+    from rtdenoise.ops.plugins import FAMILIES, entry_points
+
+    return sorted({ep.name for ep in entry_points(FAMILIES)})
+
+
 def one_line(exc: BaseException | str) -> str:
     """The message of an exception (or text) squeezed onto one line."""
     text = str(exc).strip() or type(exc).__name__

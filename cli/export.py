@@ -9,7 +9,15 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from .common import VersionOption, fail, one_line_warnings, passive_openmp_threads, user_errors
+from .common import (
+    FamilyModuleOption,
+    VersionOption,
+    fail,
+    load_family_modules,
+    one_line_warnings,
+    passive_openmp_threads,
+    user_errors,
+)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True)
 console = Console()
@@ -40,6 +48,7 @@ def export(
     tolerance: Annotated[
         float, typer.Option(help="Max error |ort-torch|/(1+|torch|) accepted on any frame.")
     ] = 1e-4,
+    family_module: FamilyModuleOption = None,
     version: VersionOption = False,
 ) -> None:
     """Export a trained denoiser to ONNX and validate it before writing.
@@ -53,6 +62,7 @@ def export(
     with user_errors(extra="export"):
         from rtdenoise.export.pipeline import export_checkpoint
 
+        load_family_modules(family_module)
         ckpt = resolve_checkpoint(checkpoint)
         if output.is_dir():
             fail(f"{output}: is a folder; give the .onnx file to write")

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import pkgutil
 import shlex
 import sys
 from pathlib import Path
@@ -13,8 +11,11 @@ from typing import Annotated
 import typer
 
 from rtdenoise.cli.common import (
+    FamilyModuleOption,
     VersionOption,
     fail,
+    family_names,
+    load_family_modules,
     one_line_warnings,
     passive_openmp_threads,
     user_errors,
@@ -25,14 +26,6 @@ app = typer.Typer(
     no_args_is_help=True,
     rich_markup_mode="markdown",
 )
-
-
-def family_names() -> list[str]:
-    """The modules of `rtdenoise.models.families`, one per family, found without importing
-    them (so without torch): `--help` lists them even where the train extra is missing."""
-    spec = importlib.util.find_spec("rtdenoise.models.families")
-    locations = spec.submodule_search_locations if spec else None
-    return sorted(m.name for m in pkgutil.iter_modules(locations or []) if not m.ispkg)
 
 
 def _parse_config(text: str | None) -> dict | None:
@@ -76,8 +69,12 @@ def train_command(
     ],
     output: Annotated[Path, typer.Option("--output", "-o", help="Checkpoint to write (.pt).")],
     family: Annotated[
-        str, typer.Option(help="Model family: " + ", ".join(family_names()) + ".")
+        str,
+        typer.Option(
+            help="Model family: " + ", ".join(family_names()) + ", or one of --family-module."
+        ),
     ] = "afn",
+    family_module: FamilyModuleOption = None,
     steps: Annotated[int, typer.Option(min=1, help="Total optimisation steps.")] = 1000,
     crop: Annotated[int, typer.Option(min=8, help="Crop size in pixels.")] = 128,
     frames: Annotated[int, typer.Option(min=1, help="Frames per clip.")] = 8,
@@ -138,6 +135,7 @@ def train_command(
     with user_errors(extra="train"):
         from rtdenoise.models.train import TrainSettings, train
 
+        load_family_modules(family_module)
         settings = TrainSettings(
             steps=steps,
             crop=crop,

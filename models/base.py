@@ -184,6 +184,8 @@ FAMILIES: dict[str, type[DenoiserModel]] = {}
 
 def register_family(cls: type[DenoiserModel]) -> type[DenoiserModel]:
     """Class decorator: make `cls` buildable by its `family` name (models.registry)."""
+    if FAMILIES.get(cls.family) is cls:  # the same class again (its module imported twice)
+        return cls
     if not cls.family or cls.family in FAMILIES:
         raise ValueError(f"{cls.__name__}: family name {cls.family!r} is empty or taken")
     if cls.config_class.family != cls.family:

@@ -2,7 +2,9 @@
 
 Never a pickled module: files load with `torch.load(weights_only=True)`. Training
 checkpoints carry one more key, `"train"` (optimizer state, step, RNG states) that
-`load_checkpoint` ignores and `load_training_state` returns.
+`load_checkpoint` ignores and `load_training_state` returns. `"family_source"` says where the
+family came from (models.registry.family_source: module, entry point, distribution), so that
+loading a checkpoint whose family is missing names what to install or import.
 Writes are atomic (temp file in the same folder, then rename).
 """
 
@@ -19,7 +21,7 @@ from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.sequences.atomic import atomic_path
 
 from .base import DenoiserModel
-from .registry import build_model
+from .registry import build_model, families, family_source
 
 REQUIRED_KEYS = ("family", "config", "state_dict", "meta")
 
@@ -44,6 +46,7 @@ def save_checkpoint(
         "config": model.config(),
         "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
         "meta": dict(meta or {}),
+        "family_source": family_source(model.family),
     }
     if train is not None:
         ckpt["train"] = train
@@ -93,6 +96,8 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 def model_from_checkpoint(ckpt: dict[str, Any], path: str | os.PathLike) -> DenoiserModel:
     """Build the checkpoint's model and load its weights; errors name `path`."""
     path = Path(path)
+    if ckpt["family"] not in families():
+        raise CheckpointError(f"{path}: {missing_family(ckpt)}")
     try:
         model = build_model(ckpt["family"], ckpt["config"])
     except (ValueError, TypeError) as exc:
@@ -105,6 +110,22 @@ def model_from_checkpoint(ckpt: dict[str, Any], path: str | os.PathLike) -> Deno
             f"{path}: state_dict does not match the {ckpt['family']} model ({first})"
         ) from exc
     return model
+
+
+def missing_family(ckpt: dict[str, Any]) -> str:
+    """Why the checkpoint's family cannot be built here and how to make it importable."""
+    family, source = ckpt["family"], ckpt.get("family_source") or {}
+    module = source.get("module") if isinstance(source, dict) else None
+    came = f" (it came from module {module}" if module else ""
+    if came and source.get("distribution"):
+        came += f", distribution {source['distribution']}"
+    came += ")" if came else ""
+    hint = f"--family-module {module}" if module else "--family-module <module>"
+    return (
+        f"model family {family!r} is not registered here{came}; install the package that "
+        f"declares it (an entry point of group 'rtdenoise.families'), or name its code with "
+        f"{hint}; known: {families()}"
+    )
 
 
 def load_checkpoint(path: str | os.PathLike) -> tuple[DenoiserModel, dict]:

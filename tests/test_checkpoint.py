@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+import rtdenoise
 from rtdenoise.models.checkpoint import (
     CheckpointError,
     load_checkpoint,
@@ -31,7 +32,12 @@ def model():
 def test_save_load_roundtrip_is_a_plain_dict(tmp_path, model):
     path = save_checkpoint(tmp_path / "m.pt", model, {"step": 3})
     raw = torch.load(path, weights_only=True)  # loads with no custom class allowed
-    assert set(raw) == {"family", "config", "state_dict", "meta"}
+    assert set(raw) == {"family", "config", "state_dict", "meta", "family_source"}
+    assert raw["family_source"] == {
+        "module": "rtdenoise.models.families.afn",
+        "entry_point": "afn = rtdenoise.models.families.afn:AFN",
+        "distribution": f"rtdenoise {rtdenoise.__version__}",
+    }
     assert raw["family"] == "afn" and raw["config"]["widths"] == [8, 12]
     loaded, meta = load_checkpoint(path)
     assert meta == {"step": 3} and not loaded.training
@@ -93,7 +99,19 @@ def test_unknown_family_and_bad_state_dict(tmp_path, model):
     }
     path = tmp_path / "fam.pt"
     torch.save(dict(good, family="warp9"), path)
-    with pytest.raises(CheckpointError, match=r"fam\.pt: unknown model family 'warp9'"):
+    with pytest.raises(
+        CheckpointError,
+        match=r"fam\.pt: model family 'warp9' is not registered "
+        r"here; install the package that declares it .* --family-module <module>",
+    ):
+        load_checkpoint(path)
+    source = {"module": "warp_pkg.net", "entry_point": None, "distribution": None}
+    torch.save(dict(good, family="warp9", family_source=source), path)
+    with pytest.raises(
+        CheckpointError,
+        match=r"\(it came from module warp_pkg\.net\); .* with "
+        r"--family-module warp_pkg\.net; known: \['affinity'",
+    ):
         load_checkpoint(path)
     torch.save(dict(good, config=dict(good["config"], bogus=1)), path)
     with pytest.raises(CheckpointError, match=r"fam\.pt: unknown afn config keys \['bogus'\]"):

@@ -40,14 +40,14 @@ def test_help_shows_no_bool_type_on_flags(argv):
 
 
 def test_train_help_lists_the_families(monkeypatch):
-    """Found by file (no torch import), and the same as the registry's."""
-    from rtdenoise.cli.train import family_names
+    """Found from the entry points (no torch import), and the same as the registry's."""
+    from rtdenoise.cli.common import family_names
     from rtdenoise.models.registry import families
 
     assert family_names() == families()
     monkeypatch.setenv("COLUMNS", "250")
     res = runner.invoke(app_of("train"), ["--help"])
-    assert f"Model family: {', '.join(families())}." in res.output
+    assert f"Model family: {', '.join(families())}, or one of --family-module." in res.output
 
 
 @pytest.mark.parametrize(

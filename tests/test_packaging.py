@@ -65,3 +65,14 @@ def test_fast_kernels_only_where_both_have_wheels(env, fast):
         assert BASE[name].marker.evaluate(ENV | env) is fast, name
     assert BASE["tomli"].marker.evaluate(ENV | {"python_version": "3.10"})
     assert not BASE["tomli"].marker.evaluate(ENV)
+
+
+def test_every_family_module_is_declared_an_entry_point():
+    """The shipped families are found only through their entry points (docs/your-own-model.md):
+    a module of models/families/ without one would be silently missing."""
+    from rtdenoise.models.registry import families
+
+    declared = PROJECT["entry-points"]["rtdenoise.families"]
+    modules = {p.stem for p in (ROOT / "models" / "families").glob("*.py") if p.stem != "__init__"}
+    assert {v.split(":")[0].rsplit(".", 1)[1] for v in declared.values()} == modules
+    assert set(declared) <= set(families())

@@ -13,11 +13,12 @@ from collections.abc import Iterable, Sequence
 import onnx
 from onnx import TensorProto, helper
 
-from rtdenoise.ops import DOMAIN, DOMAIN_VERSION, import_submodules
+from rtdenoise.ops import DOMAIN, DOMAIN_VERSION, import_submodules, plugins
 
 from .base import IR_VERSION, ONNX_FORMS, OPSET, OnnxForm, function_body
 
 import_submodules(__name__)
+plugins.load_modules(plugins.ONNX_FORMS)  # forms of other packages' ops (docs/your-own-model.md)
 
 __all__ = [
     "DOMAIN",

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rtdenoise.ops import import_submodules
+from rtdenoise.ops import import_submodules, plugins
 
 from .cache import clear_if_sources_changed
 from .fast_kernel import KERNELS, FastKernel, fast_kernel
 
 clear_if_sources_changed(Path(__file__).parent)  # before any kernel loads numba's cache
 import_submodules(__name__)
+plugins.load_modules(plugins.KERNELS)  # forms of other packages' ops (docs/your-own-model.md)
 
 
 def warmup() -> None:
