@@ -335,6 +335,15 @@ def run(
             "--learn-every", min=1, help="Online learning: update on every N-th frame only."
         ),
     ] = 1,
+    relearn_at_cuts: Annotated[
+        bool,
+        typer.Option(
+            "--relearn-at-cuts",
+            help="Online learning: a cut (a gap in the frame numbers, a new shot) also restarts "
+            "the learning from the model's initial weights; by default the weights learned so "
+            "far carry over (the history restarts either way).",
+        ),
+    ] = False,
     kernel_size: Annotated[
         int | None,
         typer.Option(
@@ -408,6 +417,7 @@ def run(
                 providers=tuple(provider or ()),
                 learn=online,
                 learn_every=learn_every,
+                relearn_at_cuts=relearn_at_cuts,
                 options={"kernel_size": kernel_size} if kernel_size is not None else None,
             )
             code = run_cluster(
@@ -438,6 +448,7 @@ def run(
             providers=provider,
             learn=online,
             learn_every=learn_every,
+            relearn_at_cuts=relearn_at_cuts,
             options={"kernel_size": kernel_size} if kernel_size is not None else None,
         )
         reports = []

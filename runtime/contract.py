@@ -440,16 +440,33 @@ def _parse_options(raw: Any, fail) -> tuple[RuntimeOption, ...]:
 
 
 def _parse_online(raw: Any, state: tuple[StateSpec, ...], fail) -> dict[str, Any]:
-    """`rtdenoise.online`: a JSON object; its `freeze` (the state a host sets to 1 to skip a
-    frame's update) must name a listed single-value state."""
+    """`rtdenoise.online`: a JSON object; its controls `freeze` (the state a host sets to 1 to
+    skip a frame's update) and `keep` (1: a reset keeps the learning) must name listed
+    single-value states, and the learning states (`parameters`, `moments`, `step`) listed ones."""
     if not isinstance(raw, dict):
         raise fail(f"{KEY_ONLINE} must be a JSON object, got {type(raw).__name__}")
-    freeze = raw.get("freeze")
-    if freeze is not None:
-        spec = next((s for s in state if s.name == freeze), None)
-        if spec is None or spec.channels != 1 or spec.size != (1, 1):
-            raise fail(f"{KEY_ONLINE} freeze {freeze!r} is not a listed 1-value state")
+    names = {s.name: s for s in state}
+    for key in ("freeze", "keep"):
+        control = raw.get(key)
+        if control is not None:
+            spec = names.get(control)
+            if spec is None or spec.channels != 1 or spec.size != (1, 1):
+                raise fail(f"{KEY_ONLINE} {key} {control!r} is not a listed 1-value state")
+    if raw.get("keep") is not None:
+        learned = learning_states(raw)
+        if not learned or any(name not in names for name in learned):
+            raise fail(f"{KEY_ONLINE} keep needs listed parameters, moments and step states")
     return raw
+
+
+def learning_states(online: dict[str, Any] | None) -> tuple[str, ...]:
+    """The states an online model learns (weights, optimiser moments, step): what a reset that
+    keeps the learning (`keep` = 1) carries over."""
+    if not online:
+        return ()
+    moments = online.get("moments") or []
+    names = [online.get("parameters"), *moments, online.get("step")]
+    return tuple(n for n in names if isinstance(n, str))
 
 
 def _buffer_spec(name: str, shape: tuple[Dim, ...], fail) -> BufferSpec:

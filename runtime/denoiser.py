@@ -43,6 +43,7 @@ from .errors import InputError
 from .external_data import check_external_data
 from .guard import GuardReport, GuardTotals, count_nonfinite, guard_buffers, replace_nonfinite
 from .interrupts import deferred_signals
+from .online import OnlineControls
 from .placement import placed
 from .session import (
     SERIAL_KERNELS_BELOW,
@@ -92,6 +93,9 @@ class Denoiser:
     learn, learn_every: for a model that learns while it runs (metadata `rtdenoise.online`,
         docs/contract.md): take its update step on frames 0, N, 2N, ... of each history
         (N = learn_every), none with learn=False (weights frozen). Ignored by other models.
+    relearn_at_cuts: a reset (`reset()`, a cut) of such a model also restarts its learning
+        (weights at initialisation, optimiser moments zero); by default it keeps what it
+        learned, across size changes too (`reset(learning=True)` restarts it once).
     overrides: values of the model's run-time options (`contract.options`, e.g.
         {"kernel_size": 7}), fed as its overridable initializers `option.<name>` every frame.
     """
@@ -109,6 +113,7 @@ class Denoiser:
         shared_arena: bool = False,
         learn: bool = True,
         learn_every: int = 1,
+        relearn_at_cuts: bool = False,
         overrides: Mapping[str, float] | None = None,
     ) -> None:
         if isinstance(model, (bytes, bytearray)):
@@ -161,9 +166,8 @@ class Denoiser:
         self._lock = threading.Lock()  # one frame at a time (docs/reliability.md, "Threads")
         if learn_every < 1:
             raise InputError(f"learn_every must be >= 1, got {learn_every}")
-        self.learn = learn
-        self.learn_every = learn_every
-        self._freeze = (self._contract.online or {}).get("freeze")
+        self.learn, self.learn_every, self.relearn_at_cuts = learn, learn_every, relearn_at_cuts
+        self._online = OnlineControls(self._contract.online)
 
     # -- properties -------------------------------------------------------------------------
 
@@ -239,10 +243,14 @@ class Denoiser:
 
     # -- frame loop -------------------------------------------------------------------------
 
-    def reset(self) -> None:
-        """Forget the history: the next frame starts from zero state with reset = 1."""
+    def reset(self, learning: bool | None = None) -> None:
+        """Forget the history: the next frame starts from zero state with reset = 1. A model
+        that learns while it runs keeps what it learned unless `learning` (default:
+        `relearn_at_cuts`) restarts that too."""
         with self._lock:
             self._restart("reset()")
+            if self.relearn_at_cuts if learning is None else learning:
+                self._online.restart_learning()
 
     def _restart(self, reason: str) -> None:
         """Start a new history at the next frame, noting why (the first reason wins)."""
@@ -299,7 +307,7 @@ class Denoiser:
             report.reset = self._reset_reason
             self._start_history((h, w), (hp, wp))
         first = self._frame_index == 0
-        self._write_controls()
+        self._online.write(self._state, self._frame_index, self.learn, self.learn_every)
         t0 = time.perf_counter()
         try:
             result = self._run(feeds, first, hp, wp)
@@ -357,17 +365,12 @@ class Denoiser:
         return feeds, size, (hp, wp), report
 
     def _start_history(self, size: tuple[int, int], padded: tuple[int, int]) -> None:
-        """Zero the state (allocating it at a new size) for a fresh history."""
-        self._state.start(padded)
+        """Zero the state (allocating it at a new size) for a fresh history, but for what an
+        online model learned unless its learning restarts too."""
+        self._online.start_history(self._state, padded)
         self._size = size
         self._frame_index = 0
         self._pending_reset = False
-
-    def _write_controls(self) -> None:
-        """An online model's freeze control for this frame: 0 = take the update step."""
-        if self._freeze is not None:
-            step = self.learn and self._frame_index % self.learn_every == 0
-            self._state.fill(self._freeze, 0.0 if step else 1.0)
 
     def _run(self, feeds: dict[str, np.ndarray], first: bool, hp: int, wp: int) -> np.ndarray:
         """One session run: the frame's buffers, reset and options in, the output and the next
@@ -414,6 +417,9 @@ class Denoiser:
             return run(*args)
 
     def _note_state_nonfinite(self, bad: int) -> None:
+        if bad and self._online.learned:  # weights zeroed in place: learn anew
+            self._online.restart_learning()
+            self._restart("non-finite state")
         if bad and not self.total_state_nonfinite:
             warnings.warn(
                 f"{self.source}: the model produced {bad} NaN/Inf state values on frame "

@@ -40,6 +40,12 @@ class _Slot:
         else:
             self.value.update_inplace(np.full(self.shape, value, np.float32))
 
+    def write(self, values: np.ndarray) -> None:
+        if self.host is not None:
+            np.copyto(self.host, values)
+        else:
+            self.value.update_inplace(np.ascontiguousarray(values, np.float32))
+
     def read(self) -> np.ndarray:
         """The values (the host array itself on CPU, a copy from a device)."""
         return self.host if self.host is not None else self.value.numpy()
@@ -65,18 +71,24 @@ class StateStore:
         self.padded: tuple[int, int] | None = None
         self._slots: dict[str, list[_Slot]] = {}
 
-    def start(self, padded: tuple[int, int]) -> None:
-        """Zero state for a new history, allocated anew when the padded size changes."""
+    def start(self, padded: tuple[int, int], keep: Sequence[str] = ()) -> None:
+        """Zero state for a new history, allocated anew when the padded size changes; the
+        states named in `keep` carry their values over (across a size change too, where their
+        shape does not depend on the frame size: an online model's weights)."""
         if padded != self.padded:
-            hp, wp = padded
+            old, hp, wp = self._slots, *padded
             self._slots = {
                 s.name: [_Slot(s.shape(hp, wp), self.device), _Slot(s.shape(hp, wp), self.device)]
                 for s in self.specs
             }
+            for name in keep:
+                if name in old and old[name][0].shape == self._slots[name][0].shape:
+                    self._slots[name][0].write(old[name][0].read())
             self.padded = padded
         else:
-            for pair in self._slots.values():
-                pair[0].fill(0.0)
+            for name, pair in self._slots.items():
+                if name not in keep:
+                    pair[0].fill(0.0)
 
     @property
     def started(self) -> bool:
@@ -117,11 +129,7 @@ class StateStore:
                         f"{self.source}: model broke the contract: {s.output_name} has shape "
                         f"{value.shape}, expected {s.shape(hp, wp)}"
                     )
-                following = self._slots[s.name][1]
-                if following.host is not None:
-                    np.copyto(following.host, value)
-                else:
-                    following.value.update_inplace(np.ascontiguousarray(value, np.float32))
+                self._slots[s.name][1].write(value)
         bad = 0
         for pair in self._slots.values():
             pair.reverse()

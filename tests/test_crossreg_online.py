@@ -140,3 +140,73 @@ def test_stage_benchmark_assigns_every_node_and_runs(tmp_path):
     assert set(paths) == {"torch", "ort_fast", "ort_portable"}
     for stage in ("regression", "unet", "filter", "backward + adam"):
         assert paths["torch"]["stages"][stage] > 0 and paths["ort_fast"]["stages"][stage] > 0
+
+
+def _theta_and_step(den) -> tuple:
+    return den.state_value("theta").ravel(), float(den.state_value("adam_t").ravel()[0])
+
+
+def test_a_cut_keeps_the_learning_unless_asked():
+    """reset() restarts the history, not the learning: the weights, Adam's moments and step
+    carry over (a size change too); reset(learning=True) and relearn_at_cuts restart them."""
+    import numpy as np
+
+    from rtdenoise.runtime import Denoiser
+    from rtdenoise.runtime.sequences.frames import find_frames, read_frame
+
+    frames = [read_frame(p).buffers for p in find_frames(sample_sequences()[0])]
+    init = Denoiser("demo:crossreg", learn=False)
+    init.process(frames[0])
+    theta0, _ = _theta_and_step(init)
+
+    den = Denoiser("demo:crossreg")
+    for frame in frames[:3]:
+        den.process(frame)
+    learned, steps = _theta_and_step(den)
+    assert steps == 3.0 and not np.array_equal(learned, theta0)
+    den.reset()
+    den.learn = False  # a frozen frame shows which weights it started from
+    den.process(frames[3])
+    assert den.frame_index == 1
+    kept, steps = _theta_and_step(den)
+    np.testing.assert_array_equal(kept, learned)
+    assert steps == 3.0
+    den.process({k: v[..., :48, :56] for k, v in frames[4].items()})  # a new size: a new history
+    np.testing.assert_array_equal(_theta_and_step(den)[0], learned)
+    den.reset(learning=True)
+    den.process(frames[0])
+    relearned, steps = _theta_and_step(den)
+    np.testing.assert_array_equal(relearned, theta0)
+    assert steps == 0.0
+
+    every_cut = Denoiser("demo:crossreg", relearn_at_cuts=True)
+    for frame in frames[:2]:
+        every_cut.process(frame)
+    every_cut.reset()
+    every_cut.learn = False
+    every_cut.process(frames[2])
+    np.testing.assert_array_equal(_theta_and_step(every_cut)[0], theta0)
+
+
+def test_relearn_at_cuts_on_the_command_line(tmp_path):
+    """A gap in the frame numbers is a cut: the update steps of the sequence go on over it, or
+    start again after it with --relearn-at-cuts."""
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from rtdenoise.cli.run import app
+
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    for path in sorted(sample_sequences()[0].glob("*_000[0-6].exr")):
+        if "0003" not in path.name:  # frames 0-2, then 4-6
+            shutil.copy(path, seq / path.name)
+    runner = CliRunner()
+    kept = runner.invoke(app, [str(seq), "-o", str(tmp_path / "a"), "-m", "demo:crossreg"])
+    assert kept.exit_code == 0, kept.output
+    assert "6 update steps" in kept.output
+    again = runner.invoke(app, [str(seq), "-o", str(tmp_path / "b"), "-m", "demo:crossreg",
+                                "--relearn-at-cuts"])  # fmt: skip
+    assert again.exit_code == 0, again.output
+    assert "3 update steps" in again.output

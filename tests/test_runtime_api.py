@@ -48,10 +48,12 @@ def test_denoiser_keeps_its_signature():
     params = inspect.signature(rtdenoise.runtime.Denoiser).parameters
     assert list(params) == [
         "model", "fast_kernels", "threads", "pin_threads", "spinning", "providers",
-        "io_binding", "shared_arena", "learn", "learn_every", "overrides",
+        "io_binding", "shared_arena", "learn", "learn_every", "relearn_at_cuts", "overrides",
     ]  # fmt: skip
     process = inspect.signature(rtdenoise.runtime.Denoiser.process).parameters
     assert list(process) == ["self", "buffers", "reset", "out", "channels_last"]
+    reset = inspect.signature(rtdenoise.runtime.Denoiser.reset).parameters
+    assert list(reset) == ["self", "learning"]
 
 
 def test_setup_maps_the_same_folders_as_the_checkout():

@@ -19,9 +19,11 @@
 The forward pass of step 4 is the one displayed and the one back-propagated (it uses
 theta_{t-1}); no gradient crosses frames. The state carries the history (log output and both
 pilots), the geometry (normal, depth) and the learning: theta, Adam's m and v, the step count t,
-the frame's loss (output only) and `freeze` (a host-set control: 1 skips this frame's update; it
-is read even when reset = 1, the only state that is). Reset (first frame, camera cut) restarts
-from theta at initialisation (the module's parameters: Glorot-uniform, seeded), m = v = t = 0.
+the frame's loss (output only) and two host-set controls, read even when reset = 1: `freeze`
+(1 skips this frame's update) and `keep` (1: a reset keeps theta, m, v and t). Reset (first
+frame, camera cut) restarts the history; without `keep` (a zero state, as a host that knows
+nothing of it leaves it) also the learning, from theta at initialisation (the module's
+parameters: Glorot-uniform, seeded), m = v = t = 0.
 
 Choices (all in `CrossRegConfig`, stored in checkpoints), from the official code
 (CGLab-GIST/cross-denoiser) where the paper's text is loose:
@@ -207,6 +209,7 @@ class CrossReg(DenoiserModel):
             StateSpec("adam_t", 1, size=one),  # steps taken
             StateSpec("loss", 1, size=one),  # this frame's loss (output only)
             StateSpec("freeze", 1, size=one),  # host control: 1 = no update this frame
+            StateSpec("keep", 1, size=one),  # host control: 1 = a reset keeps theta and Adam's
         )
 
     # -- the contract ----------------------------------------------------------------------
@@ -225,7 +228,8 @@ class CrossReg(DenoiserModel):
             "step": "adam_t",
             "loss": "loss",
             "freeze": "freeze",
-            "controls": ["freeze"],
+            "keep": "keep",
+            "controls": ["freeze", "keep"],
             "layout": self.layout.to_json(),
         }
 
@@ -300,8 +304,10 @@ class CrossReg(DenoiserModel):
         prev_out = torch.where(has_history, warped[:, :3], 0.5 * (pilot_a + pilot_b))
         prev_a, prev_b = warped[:, 3:6], warped[:, 6:9]
 
-        # theta_{t-1}: the state, or the initialisation after a reset.
-        theta = torch.where(fresh, self.layout.flatten(self.unet), state["theta"].reshape(-1))
+        # theta_{t-1}: the state, or the initialisation after a reset that does not keep it
+        # (`keep`, a host control: a camera cut restarts the history, not the learning).
+        relearn = fresh & (state["keep"].reshape(-1)[:1] < 0.5)
+        theta = torch.where(relearn, self.layout.flatten(self.unet), state["theta"].reshape(-1))
         attached = theta.requires_grad  # to the module's parameters (outer training only)
         with torch.enable_grad():
             if not attached:
@@ -336,9 +342,9 @@ class CrossReg(DenoiserModel):
             theta_next, m, v, t = adam_step(
                 theta.detach(),
                 grad,
-                torch.where(fresh, 0.0, state["adam_m"].reshape(-1)),
-                torch.where(fresh, 0.0, state["adam_v"].reshape(-1)),
-                torch.where(fresh, 0.0, state["adam_t"].reshape(-1)),
+                torch.where(relearn, 0.0, state["adam_m"].reshape(-1)),
+                torch.where(relearn, 0.0, state["adam_v"].reshape(-1)),
+                torch.where(relearn, 0.0, state["adam_t"].reshape(-1)),
                 learn,
                 self.adam,
             )
@@ -354,6 +360,7 @@ class CrossReg(DenoiserModel):
             geometry=torch.cat((normal, depth), dim=1),
             loss=loss.detach().reshape(1, 1, 1, 1),
             freeze=state["freeze"],
+            keep=state["keep"],
         )
         return output, next_state
 

@@ -58,12 +58,14 @@ def load_backend(
     learn: bool = True,
     learn_every: int = 1,
     options: Mapping[str, float] | None = None,
+    relearn_at_cuts: bool = False,
 ) -> Backend:
     """`none` -> PassThrough; an .onnx path or `demo:<family>` -> Denoiser.
 
     portable: run the custom ops' standard-ONNX function bodies instead of the fast kernels.
     providers: ONNX Runtime execution providers in order of preference (None or empty: CPU).
-    learn, learn_every: online learning of a model that learns while it runs (Denoiser).
+    learn, learn_every, relearn_at_cuts: online learning of a model that learns while it runs
+        (Denoiser).
     options: values of the model's run-time options (e.g. {"kernel_size": 7}).
     """
     if model.strip().lower() == "none":
@@ -81,5 +83,6 @@ def load_backend(
         providers=list(providers or []) or None,
         learn=learn,
         learn_every=learn_every,
+        relearn_at_cuts=relearn_at_cuts,
         overrides=options,
     )

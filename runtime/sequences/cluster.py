@@ -52,6 +52,7 @@ class BackendSpec:
     learn: bool = True
     learn_every: int = 1
     options: Mapping[str, float] | None = None  # run-time options, e.g. {"kernel_size": 7}
+    relearn_at_cuts: bool = False
 
     def load(self) -> Backend:
         return load_backend(
@@ -62,6 +63,7 @@ class BackendSpec:
             learn=self.learn,
             learn_every=self.learn_every,
             options=self.options,
+            relearn_at_cuts=self.relearn_at_cuts,
         )
 
 
