@@ -495,3 +495,16 @@ def test_layout_file_and_show_layout(tmp_path):
     np.testing.assert_allclose(rgb(tmp_path / "out" / "f_0001.exr"), noisy, rtol=2**-10, atol=1e-6)
     res = invoke(seq, "-o", tmp_path / "o2", "--layout", tmp_path / "missing.toml")
     assert res.exit_code == 2 and "missing.toml: no such layout file" in res.stderr
+
+
+def test_a_model_that_needs_color_b_says_how_to_make_it(tmp_path):
+    """Files without colorB (most renderers write none): the error names the buffer and says
+    how to produce it; nothing is written."""
+    make_sequence(tmp_path / "seq", n=2)  # R,G,B, albedo, normal, depth, motion: no colorB
+    res = invoke(tmp_path / "seq", "-o", tmp_path / "out", "--model", "demo:crossreg")
+    assert res.exit_code == 2
+    text = " ".join(res.output.split())
+    assert "missing channel colorB.R, colorB.G, colorB.B for buffer 'color_b'" in text
+    assert "render each frame twice with different seeds" in text
+    assert "--channel color_b=LAYER" in text
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())

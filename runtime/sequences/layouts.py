@@ -378,11 +378,26 @@ def resolve_channels(
                 raise InputError(
                     f"{source}: missing channel {', '.join(partial)} for buffer {buf!r} "
                     f"(layout {layout.name}{_suggest(layout, buf, present, by_suffix)}); "
-                    f"channels present: {_list_names(present)}"
+                    f"channels present: {_list_names(present)}{_hint(buf)}"
                 )
             if required_here:
                 raise InputError(f"{source}: layout {layout.name} has no source for {buf!r}")
     return result
+
+
+# What a buffer is and how to make it, for the buffers most renderers do not write.
+BUFFER_HINTS = {
+    "color_b": (
+        "color_b is a second, independent estimate of the same frame (Choi24's cross-regression "
+        "needs two): render each frame twice with different seeds (Cycles: Sampling > Seed), "
+        "half the samples each, and store the second render's RGB in the same EXR as "
+        "colorB.R/G/B, or name its layer with --channel color_b=LAYER"
+    ),
+}
+
+
+def _hint(buf: str) -> str:
+    return f"; {BUFFER_HINTS[buf]}" if buf in BUFFER_HINTS else ""
 
 
 def check_channels(
@@ -400,7 +415,7 @@ def check_channels(
             raise InputError(
                 f"{source}: missing channel {', '.join(missing)} for buffer {buf!r} "
                 f"(layout {layout.name}, as the sequence's first frame has it); "
-                f"channels present: {_list_names(present)}"
+                f"channels present: {_list_names(present)}{_hint(buf)}"
             )
 
 
