@@ -15,6 +15,7 @@ HDR colour with albedo and normal, quality "high" / "balanced" / "fast".
 
 from __future__ import annotations
 
+import inspect
 import statistics
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -77,7 +78,15 @@ def model_contender(name: str, denoiser: Any, remake: Callable[[], Any] | None =
     `remake()` builds another one like it (for `Contender.fresh`)."""
     fresh = None if remake is None else (lambda: model_contender(name, remake(), remake))
     buffers = tuple(denoiser.required_buffers)
-    return Contender(name, denoiser.process, denoiser.reset, buffers, fresh=fresh)
+    return Contender(name, denoiser.process, _sequence_start(denoiser), buffers, fresh=fresh)
+
+
+def _sequence_start(denoiser: Any) -> Callable[[], None]:
+    """What starts a sequence: a reset that restarts an online model's learning too, so that
+    every sequence (and every timed size) starts from the model's own weights."""
+    if "learning" in inspect.signature(denoiser.reset).parameters:
+        return lambda: denoiser.reset(learning=True)
+    return denoiser.reset
 
 
 # Pause after each contender's frame (untimed): ONNX Runtime's idle workers spin for a while
