@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..guard import nonfinite_pixels
 from .atomic import check_writable, temp_files_of
 from .backend import Backend
-from .exr import pixel_limit, read_exr
+from .exr import pixel_limit, read_exr, read_exr_header
 from .frames import (
     frame_number,
     match_references,
@@ -148,6 +148,25 @@ def _nonfinite_message(pixels: int, buffers: Sequence[str], bad_out: int) -> str
     return "; ".join(parts)
 
 
+def unreadable_output(path: Path, size: tuple[int, int]) -> str | None:
+    """Why an existing output cannot be kept by --resume (its header, its R, G, B at the
+    sequence's (height, width), its pixels decoded), or None when it reads. A file renamed
+    before its data reached the disk (power loss) is empty or truncated."""
+    try:
+        sizes = read_exr_header(path)
+        absent = [c for c in "RGB" if c not in sizes]
+        if absent:
+            return f"no channel {absent[0]!r}"
+        odd = next((c for c in "RGB" if sizes[c] != tuple(size)), None)
+        if odd is not None:
+            (h, w), (eh, ew) = sizes[odd], size
+            return f"channel {odd!r} is {w}x{h}, the sequence is {ew}x{eh}"
+        read_exr(path, list("RGB"))
+    except InputError as exc:
+        return str(exc).removeprefix(f"{path}: ")
+    return None
+
+
 def _read_rgb(path: Path) -> np.ndarray:
     """R,G,B of an output file as float32 (3, H, W)."""
     ch = read_exr(path, list("RGB"))
@@ -237,6 +256,13 @@ def _run_sequence(
                 scan_reference(ref, layout, expect_size=size)
     outputs = plan_outputs(job, references, preview)
     done = frames_done(outputs, preview, overwrite=overwrite, resume=resume)
+    for i, out_path in enumerate(outputs):
+        if done[i]:
+            with reading():
+                problem = unreadable_output(out_path, size)
+            if problem:
+                done[i] = False
+                on_warning(f"{out_path}: kept output does not read ({problem}): denoised again")
     stale = remove_stale_temps(outputs, preview)
     if stale:
         on_warning(f"{job.out_dir}: removed {stale} temp files an interrupted run left")
