@@ -242,16 +242,31 @@ def read_exr_header(
     return sizes
 
 
+def read_exr_windows(path: str | os.PathLike) -> tuple[Window, Window]:
+    """(data window, display window) of the file's first part, from its header; each
+    ((x min, y min), (x max, y max)), inclusive."""
+    path = Path(path)
+    try:
+        with OpenEXR.File(str(path), header_only=True) as exr:
+            header = exr.parts[0].header
+            return _window(header["dataWindow"]), _window(header["displayWindow"])
+    except Exception as exc:
+        raise InputError(f"{path}: cannot read EXR ({exc})") from exc
+
+
 def write_exr(
     path: str | os.PathLike,
     channels: dict[str, np.ndarray],
     *,
     half: bool = True,
+    windows: tuple[Window, Window] | None = None,
 ) -> Path:
     """Write 2-D channels to a single-part, ZIP-compressed EXR, atomically.
 
     `half=True` stores float16 (the default for denoised output), else float32. Arrays
     already of that type and contiguous are written as they are (no conversion, no copy).
+    windows: (data window, display window) to store, e.g. the input's (`read_exr_windows`);
+    the data window must match the channels' size. None: both (0, 0) to the size.
     """
     path = Path(path)
     if not channels:
@@ -264,6 +279,15 @@ def write_exr(
     # OpenEXR writes non-contiguous arrays wrong without an error: always pass contiguous ones.
     data = {name: np.ascontiguousarray(a, dtype=dtype) for name, a in channels.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if windows is not None:
+        data_window, display_window = windows
+        (x0, y0), (x1, y1) = data_window
+        if (y1 - y0 + 1, x1 - x0 + 1) != tuple(first):
+            raise ValueError(
+                f"write_exr: data window {data_window} is {x1 - x0 + 1}x{y1 - y0 + 1}, the "
+                f"channels are {first[1]}x{first[0]}"
+            )
+        header["dataWindow"], header["displayWindow"] = data_window, display_window
     with atomic_path(path) as tmp, OpenEXR.File(header, data) as exr:
         exr.write(str(tmp))
     return path

@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..guard import nonfinite_pixels
 from .atomic import check_writable, temp_files_of
 from .backend import Backend
-from .exr import pixel_limit, read_exr, read_exr_header
+from .exr import Window, pixel_limit, read_exr, read_exr_header, read_exr_windows
 from .frames import (
     frame_number,
     match_references,
@@ -167,6 +167,11 @@ def unreadable_output(path: Path, size: tuple[int, int]) -> str | None:
     return None
 
 
+def _box(window: Window) -> str:
+    (x0, y0), (x1, y1) = window
+    return f"({x0},{y0})-({x1},{y1})"
+
+
 def _read_rgb(path: Path) -> np.ndarray:
     """R,G,B of an output file as float32 (3, H, W)."""
     ch = read_exr(path, list("RGB"))
@@ -276,6 +281,7 @@ def _run_sequence(
     segment = 0  # index of the first frame after the last gap
     backend.reset()
     current = job.frames[0] if job.frames else job.out_dir
+    window = None  # the previous frame's data window
     try:
         frames = zip(job.frames, references, outputs, strict=True)
         for i, (path, ref, out_path) in enumerate(frames):
@@ -288,6 +294,16 @@ def _run_sequence(
                     f"{path}: {gap} frame{'s' * (gap > 1)} missing before it (frame numbers "
                     f"{frame_number(job.frames[i - 1])} -> {frame_number(path)}): history reset"
                 )
+            with reading():
+                windows = read_exr_windows(path)
+            if window is not None and windows[0] != window and not gap:
+                segment = i  # the pixels moved on the canvas: the history is not theirs
+                backend.reset()
+                on_warning(
+                    f"{path}: data window {_box(windows[0])} differs from the previous "
+                    f"frame's {_box(window)}: history reset"
+                )
+            window = windows[0]
             if done[i] and ref is None:
                 rows.append(_row(i, path, out_path, None, skipped=True))
                 on_frame()
@@ -321,7 +337,7 @@ def _run_sequence(
                     out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
                 t2 = time.perf_counter()
                 written = quantize_output(out, half)
-                write_rgb(out_path, written, half)
+                write_rgb(out_path, written, half, windows)
                 # Score and preview what was written: the float32 view of the stored half floats.
                 scored = half and (preview or ref is not None)
                 view = written.astype(np.float32) if scored else written
