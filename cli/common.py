@@ -144,6 +144,8 @@ def user_errors(extra: str | None = None) -> Iterator[None]:
         fail(message, EXIT_BAD_INPUT)
     except (InputError, OSError, ValueError, KeyError) as exc:
         fail(exc, EXIT_BAD_INPUT)
+    except MemoryError as exc:  # where no caller named the file and size first
+        fail(f"out of memory ({exc or 'MemoryError'}): free memory or lower --max-pixels")
     except RuntimeError as exc:
         fail(exc, EXIT_FAILURE)
 

@@ -38,6 +38,7 @@ from rtdenoise.runtime.memory import tune_allocator
 from rtdenoise.runtime.sequences.atomic import check_writable
 from rtdenoise.runtime.sequences.backend import Backend, load_backend
 from rtdenoise.runtime.sequences.cluster import BackendSpec, TaskOutcome, run_shots
+from rtdenoise.runtime.sequences.exr import DEFAULT_MAX_PIXELS
 from rtdenoise.runtime.sequences.frames import find_frames, group_shots
 from rtdenoise.runtime.sequences.layouts import LAYOUTS, Layout, get_layout, parse_overrides
 from rtdenoise.runtime.sequences.run import (
@@ -79,6 +80,7 @@ def run_with_progress(
     err: Console,
     overwrite: bool = False,
     resume: bool = False,
+    max_pixels: int | None = None,
 ) -> dict[str, Any]:
     """`run_sequence` with a progress bar on a terminal and warnings on stderr."""
     progress = Progress(
@@ -107,6 +109,7 @@ def run_with_progress(
             preview=preview,
             overwrite=overwrite,
             resume=resume,
+            max_pixels=max_pixels,
             on_frame=advance,
             on_warning=warn,
             reading=quiet_native_output,
@@ -352,6 +355,15 @@ def run(
             "trained at 13: 7..19 without retraining).",
         ),
     ] = None,
+    max_pixels: Annotated[
+        int,
+        typer.Option(
+            "--max-pixels",
+            min=1,
+            help="Refuse EXR files whose frame has more pixels than this, from the header, "
+            f"before decoding (default {DEFAULT_MAX_PIXELS} = 8192x8192).",
+        ),
+    ] = DEFAULT_MAX_PIXELS,
     cluster: ClusterOption = False,
     cluster_address: ClusterAddressOption = None,
     gpus_per_task: Annotated[
@@ -434,6 +446,7 @@ def run(
                     "preview": preview,
                     "overwrite": overwrite,
                     "resume": resume,
+                    "max_pixels": max_pixels,
                 },
                 out=out,
                 err=err,
@@ -463,6 +476,7 @@ def run(
                 err=err,
                 overwrite=overwrite,
                 resume=resume,
+                max_pixels=max_pixels,
             )
             report["online"] = online_summary(backend)
             print_report(report, model, out)

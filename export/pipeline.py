@@ -71,6 +71,27 @@ def count_nodes(proto: onnx.ModelProto) -> tuple[int, dict[str, int]]:
     return len(proto.graph.node), custom
 
 
+def check_finite_weights(model: DenoiserModel, source: str | os.PathLike) -> None:
+    """ValueError naming the first parameter or buffer of `model` that holds NaN/Inf (a
+    diverged training run): exported, it would give NaN frames on every input, and the
+    validation against PyTorch could only compare NaN with NaN."""
+    import torch
+
+    bad = []
+    for name, tensor in model.state_dict().items():
+        if torch.is_floating_point(tensor):
+            count = int((~torch.isfinite(tensor)).sum())
+            if count:
+                bad.append((name, tuple(tensor.shape), count, tensor.numel()))
+    if bad:
+        name, shape, count, total = bad[0]
+        more = f" (and {len(bad) - 1} more tensors)" if len(bad) > 1 else ""
+        raise ValueError(
+            f"{source}: weight {name!r} {shape} has {count} NaN/Inf of {total} values{more}; "
+            "the checkpoint is broken (a diverged training run?): not exported"
+        )
+
+
 def export_checkpoint(
     checkpoint: str | os.PathLike,
     output: str | os.PathLike | None,
@@ -84,6 +105,7 @@ def export_checkpoint(
     Raises ExportValidationError (and writes nothing) when ORT and PyTorch disagree.
     """
     model, _meta = load_checkpoint(checkpoint)
+    check_finite_weights(model, checkpoint)
     model.eval()
     proto = export_model(model)
     data = proto.SerializeToString()

@@ -119,6 +119,10 @@ def output_view(out: np.ndarray, size: tuple[int, int], channels_last: bool | No
     if not isinstance(out, np.ndarray) or out.dtype not in (np.float32, np.float16):
         kind = out.dtype if isinstance(out, np.ndarray) else type(out).__name__
         raise InputError(f"out must be a float32 or float16 numpy array, got {kind}")
+    if not out.flags.writeable:  # refused now: after the run the frame's history would be lost
+        raise InputError(
+            f"out is a read-only array (shape {out.shape}, {out.dtype}); pass a writable one"
+        )
     if out.shape[:2] == (h, w) and is_interleaved(out, 3, channels_last):
         return out[..., :3].transpose(2, 0, 1)
     if out.shape == (3, h, w) and channels_last is not True:

@@ -55,6 +55,7 @@ from .session import (
     resolve_model,
 )
 from .state import StateStore
+from .static_check import check_custom_nodes
 
 _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
 
@@ -119,10 +120,12 @@ class Denoiser:
         if isinstance(model, (bytes, bytearray)):
             self.source, payload = "<model bytes>", bytes(model)
             check_external_data(payload)
+            check_custom_nodes(payload, self.source)
         else:
             path = resolve_model(model)
             self.source, payload = str(path), str(path)
             check_external_data(path)  # every external data file inside the model's folder
+            check_custom_nodes(path.read_bytes(), self.source)  # attributes vs shapes
         opened = open_session(
             payload,
             self.source,

@@ -118,13 +118,21 @@ def external_locations(data: bytes) -> list[str]:
 
 def check_external_data(model: str | os.PathLike | bytes) -> list[Path]:
     """The external data files of `model` (a path, or serialized bytes), after checking that
-    each lies inside the model's folder (symlinks resolved) and exists. InputError naming the
-    model and the location otherwise; a model given as bytes may have no external data."""
+    each exists and, symlinks resolved, lies inside both the folder of the path as given (where
+    ONNX Runtime reads it) and the folder of the model file itself (what newer versions allow).
+    InputError naming the model and the location otherwise; a model given as bytes may have
+    no external data."""
     if isinstance(model, (bytes, bytearray)):
         source, data, folder = "<model bytes>", bytes(model), None
     else:
         path = Path(model)
-        source, data, folder = str(path), path.read_bytes(), path.resolve().parent
+        # ONNX Runtime joins each location to the folder of the path it was given, without
+        # following the model file's own link: with B/m.onnx -> A/m.onnx it reads B/<location>
+        # (1.20 then reads whatever that is; 1.32 also wants it inside A). So the data is
+        # looked up beside the given path and must resolve into both folders: the same
+        # models load on every version.
+        source, data, folder = str(path), path.read_bytes(), path.parent.resolve()
+        target_folder = path.resolve().parent
     try:
         locations = external_locations(data)
     except ValueError as exc:
@@ -151,6 +159,12 @@ def check_external_data(model: str | os.PathLike | bytes) -> list[Path]:
             )
         if not target.is_file():
             raise InputError(f"{source}: external data file {location!r} not found in {folder}")
+        if not target.is_relative_to(target_folder):
+            raise InputError(
+                f"{source}: external data location {location!r} points outside the model's "
+                f"folder {target_folder} (the model file links there; the data resolves to "
+                f"{target}); refused: keep the model and its data in one folder"
+            )
         files.append(target)
     return files
 

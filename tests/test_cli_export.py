@@ -58,3 +58,23 @@ def test_export_bad_checkpoint_is_one_line_error(tmp_path, content):
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith("error:") and "model.pt" in lines[0]
     assert not out.exists()
+
+
+def test_export_of_nan_weights_is_one_line_naming_the_weight(tmp_path):
+    """A diverged checkpoint (NaN weights) used to fail inside a fast kernel with "SystemError:
+    CPUDispatcher ... returned a result with an exception set" (issue 27, item 4)."""
+    import torch
+
+    model = build_model("afn", SMALL_AFN)
+    name, param = next(iter(model.named_parameters()))
+    with torch.no_grad():
+        param.view(-1)[:3] = float("nan")
+    ckpt = tmp_path / "nan.pt"
+    save_checkpoint(ckpt, model, {"note": "diverged"})
+    out = tmp_path / "m.onnx"
+    result = runner.invoke(app, [str(ckpt), "-o", str(out), "--size", "32", "--frames", "2"])
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error:"), result.output
+    assert f"nan.pt: weight {name!r}" in lines[0] and "has 3 NaN/Inf of" in lines[0]
+    assert not out.exists()

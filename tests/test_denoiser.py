@@ -348,6 +348,27 @@ def test_out_arrays_are_filled_in_place(ema: bytes) -> None:
             den.process({"color": color, "albedo": albedo}, out=bad)
 
 
+def test_read_only_out_is_refused_before_the_frame_runs(ema: bytes) -> None:
+    """Issue 27, item 6: a read-only `out` used to fail after the frame ran, losing that
+    frame's history. Now refused first: the history (frame_index, state) is untouched."""
+    den = Denoiser(ema, fast_kernels=False)
+    ref = Denoiser(ema, fast_kernels=False)
+    seq = [(c, a) for c, a in zip(frames(3, 9, 11), frames(3, 9, 11, 1), strict=True)]
+    for c, a in seq[:2]:
+        den.process({"color": c, "albedo": a})
+        ref.process({"color": c, "albedo": a})
+    for layout in [(3, 9, 11), (9, 11, 3), (9, 11, 4)]:
+        locked = np.zeros(layout, np.float32)
+        locked.flags.writeable = False
+        with pytest.raises(InputError, match=r"out is a read-only array \(shape"):
+            den.process({"color": seq[2][0], "albedo": seq[2][1]}, out=locked)
+    assert den.frame_index == ref.frame_index == 2
+    c, a = seq[2]
+    np.testing.assert_array_equal(
+        den.process({"color": c, "albedo": a}), ref.process({"color": c, "albedo": a})
+    )
+
+
 def test_layout_tie_and_forced_channels_last(ema: bytes) -> None:
     """(3, 8, 3) fits planar (a 3-pixel-wide frame) and interleaved (3 pixels tall): planar
     unless channels_last=True; interleaved depth may be (H, W)."""

@@ -129,3 +129,34 @@ def test_malformed_protobuf_is_one_clear_error(tmp_path):
     bad.write_bytes(b"\x0a\xff\xff\xff\x0f location")  # a field longer than the file
     with pytest.raises(InputError, match=r"bad\.onnx: not a well-formed ONNX protobuf"):
         check_external_data(bad)
+
+
+def test_model_symlink_is_checked_where_onnx_runtime_reads(tmp_path):
+    """Issue 27, item 1: B/m.onnx -> A/m.onnx with B/w.bin -> any file. ONNX Runtime reads
+    B/w.bin (beside the path it was given), so the check must look there, not beside A/m.onnx."""
+    real = save_external(tmp_path / "A")
+    (tmp_path / "B").mkdir()
+    (tmp_path / "other.bin").write_bytes(b"\x7f" * (tmp_path / "A" / "w.bin").stat().st_size)
+    os.symlink(real, tmp_path / "B" / "m.onnx")
+    os.symlink(tmp_path / "other.bin", tmp_path / "B" / "w.bin")
+    link = tmp_path / "B" / "m.onnx"
+    with pytest.raises(InputError, match=r"'w\.bin' points outside the model's folder") as info:
+        Denoiser(link, fast_kernels=False)
+    assert str(link) in str(info.value) and str(tmp_path / "B") in str(info.value)
+
+
+def test_model_symlink_into_another_folder_with_data_is_refused_on_every_version(tmp_path):
+    """ONNX Runtime 1.32 reads B/w.bin but allows only A (the link's target folder); 1.20 reads
+    B/w.bin whatever it is. Data must resolve into both: a link within A runs, a copy in B is
+    refused (the same on every version), a missing B/w.bin is 'not found' there."""
+    real = save_external(tmp_path / "A")
+    (tmp_path / "B").mkdir()
+    os.symlink(real, tmp_path / "B" / "m.onnx")
+    with pytest.raises(InputError, match=r"'w\.bin' not found in .*B"):
+        check_external_data(tmp_path / "B" / "m.onnx")
+    (tmp_path / "B" / "w.bin").write_bytes((tmp_path / "A" / "w.bin").read_bytes())
+    with pytest.raises(InputError, match=r"the model file links there.*keep the model and"):
+        Denoiser(tmp_path / "B" / "m.onnx", fast_kernels=False)
+    os.symlink(real, tmp_path / "A" / "alias.onnx")
+    assert check_external_data(tmp_path / "A" / "alias.onnx") == [(tmp_path / "A" / "w.bin")]
+    Denoiser(tmp_path / "A" / "alias.onnx", fast_kernels=False)

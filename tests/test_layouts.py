@@ -14,6 +14,7 @@ from rtdenoise.runtime.sequences.layouts import (
     check_channels,
     extract_buffers,
     get_layout,
+    load_layout,
     parse_overrides,
     resolve_channels,
     stack_buffers,
@@ -308,3 +309,14 @@ def test_the_docs_example_layout_reads_what_it_describes(tmp_path):
     np.testing.assert_allclose(b["normal"][:, 0, 0], [0, 0, 1])
     # moved +U (right) and +V (up) since the previous frame: previous = current + (-1, +3) px
     np.testing.assert_allclose(b["motion"][:, 0, 0], [-0.125 * W, 0.5 * H])
+
+
+@pytest.mark.parametrize(
+    "nested", ["a = " + "[" * 5000 + "]" * 5000, "a = " + "{b = " * 5000 + "1" + "}" * 5000]
+)
+def test_deeply_nested_layout_is_one_error_naming_the_file(tmp_path, nested):
+    """Issue 27: a 5000-level TOML exited 1 with 'maximum recursion depth exceeded'."""
+    path = tmp_path / "deep.toml"
+    path.write_text(nested)
+    with pytest.raises(InputError, match=r"deep\.toml: not a readable TOML layout file"):
+        load_layout(path)

@@ -28,6 +28,7 @@ from rtdenoise.ops.affinity_filter import EPS, kernel_size_value
 
 from .common import exp_neg
 from .fast_kernel import fast_kernel
+from .nonfinite import nan_on_nonfinite
 
 _EPS = np.float32(EPS)
 # Pixels of a row per work unit. Whole rows are fastest here (measured at 720p, 13 x 13:
@@ -35,7 +36,7 @@ _EPS = np.float32(EPS)
 TILE = 2048
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def dist4(dist, feats, guides, c, y, yy, off, x0, x1, first):
     """dist (= or +=) sum_{c' < c + 4} (feats[c', y, x] - guides[c', yy, x + off])^2."""
     for x in range(x0, x1):
@@ -48,7 +49,7 @@ def dist4(dist, feats, guides, c, y, yy, off, x0, x1, first):
         dist[u] = s if first else dist[u] + s
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def dist1(dist, feats, guides, c, y, yy, off, x0, x1, first):
     """dist (= or +=) (feats[c, y, x] - guides[c, yy, x + off])^2."""
     for x in range(x0, x1):
@@ -57,7 +58,7 @@ def dist1(dist, feats, guides, c, y, yy, off, x0, x1, first):
         dist[u] = t0 * t0 if first else dist[u] + t0 * t0
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _weights4(weight, dist, a, feats, guides, c, y, yy, off, x0, x1, first):
     """The last four feature channels (from c) of the distance, then w = exp(-a d)."""
     for x in range(x0, x1):
@@ -72,7 +73,7 @@ def _weights4(weight, dist, a, feats, guides, c, y, yy, off, x0, x1, first):
         weight[u] = exp_neg(-a[u] * s)
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _accumulate3(num, den, weight, values, yy, off, x0, x1):
     """den += w; num[c] += w * values[c, yy, x + off] for three channels, one pass."""
     for x in range(x0, x1):
@@ -84,7 +85,7 @@ def _accumulate3(num, den, weight, values, yy, off, x0, x1):
         num[2, u] += w * values[2, yy, v]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _weights(weight, dist, a, x0, x1):
     """weight = exp(-a * dist) (any feature count)."""
     for x in range(x0, x1):
@@ -92,14 +93,14 @@ def _weights(weight, dist, a, x0, x1):
         weight[u] = exp_neg(-a[u] * dist[u])
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def apply_mask(weight, mask, yy, off, x0, x1):
     """weight[x] *= mask[yy, x + off]."""
     for x in range(x0, x1):
         weight[uintp(x)] *= mask[yy, uintp(x + off)]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _accumulate(num, den, weight, values, yy, off, x0, x1):
     """den += w; num[c] += w * values[c, yy, x + off] for every channel c."""
     for x in range(x0, x1):
@@ -110,7 +111,7 @@ def _accumulate(num, den, weight, values, yy, off, x0, x1):
             num[c, u] += weight[u] * values[c, yy, v]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def affinity_taps(
     num, den, feats, a, values, guides, mask, y, xa, xb, k, d, skip_centre, use_mask, dist, weight
 ):
@@ -158,13 +159,13 @@ def affinity_taps(
                 _accumulate(num, den, weight, values, yy, off, x0, x1)
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _scaled(dst, a, b):
     for x in range(dst.shape[0]):
         dst[x] = a[x] * b[x]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def start_with_centre(num, den, image, centre, y, xa, xb):
     """num = c * image, den = c for output pixels (y, x), x in [xa, xb): the centre tap
     (Isik21 eq. (4)); image (C, H, W), centre (H, W)."""
@@ -173,7 +174,7 @@ def start_with_centre(num, den, image, centre, y, xa, xb):
         _scaled(num[c, xa:xb], centre[y, xa:xb], image[c, y, xa:xb])
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def normalise(out, num, den, y, xa, xb):
     """out[:, y, xa:xb] = num / (1e-10 + den) (Isik21 eq. (6)); out (C, H, W)."""
     for x in range(xa, xb):
@@ -182,7 +183,7 @@ def normalise(out, num, den, y, xa, xb):
         _scaled(out[c, y, xa:xb], num[c, xa:xb], den[xa:xb])
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def spatial_sums(image, features, bandwidth, centre, mask, n, y, xa, xb, k, d):
     """The unnormalised sums of one tile of row y (Isik21 eq. (4)): the centre weight, then
     the dilated taps -> (num (C, W), den (W), and the dist / weight scratch rows for more
@@ -200,7 +201,7 @@ def spatial_sums(image, features, bandwidth, centre, mask, n, y, xa, xb, k, d):
     return num, den, dist, weight
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _affinity_filter_nb(image, features, bandwidth, centre, out, k, d):
     n_img, h, w = image.shape[0], image.shape[2], image.shape[3]
     tiles = -(-w // TILE)
@@ -216,6 +217,7 @@ def _affinity_filter_nb(image, features, bandwidth, centre, out, k, d):
 
 
 @fast_kernel("AffinityFilter")
+@nan_on_nonfinite(5)
 def affinity_filter(
     image: np.ndarray,
     features: np.ndarray,

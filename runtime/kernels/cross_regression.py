@@ -22,12 +22,13 @@ from rtdenoise.ops.cross_regression import centre_count, reconstruction_offsets
 
 from .cross_bilateral_filter import mirror
 from .fast_kernel import fast_kernel
+from .nonfinite import nan_on_nonfinite
 
 P = 6
 NQ = 14  # y (3), albedo (3), normal (3), sigma, var, target (3)
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _stack(y, target, albedo, normal, q):
     """q (B, 14, H, W) float64 from the float32 inputs; var over the in-image 3x3 neighbours."""
     nb, _, h, w = y.shape
@@ -57,7 +58,7 @@ def _stack(y, target, albedo, normal, q):
             q[b, 10, yy, x] = var
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _centre_sums(q, b, cy, cx, r, acc):
     """The 61 distinct sums of X^T W X and X^T W y over the mirrored window of centre (cy, cx)
     (10 shared by the channels: 1 and n; 17 per channel), in local accumulators."""
@@ -117,7 +118,7 @@ def _centre_sums(q, b, cy, cx, r, acc):
                 acc[k + 16] += wt * n2
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _solve(acc, c, beta):
     """beta (6,) of channel c: Cholesky solve of the ridge system assembled from the sums."""
     a = np.empty((P, P))
@@ -167,7 +168,7 @@ def _solve(acc, c, beta):
         beta[i] = s / low[i, i]
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _regress(q, beta, window, stride):
     """beta (B, Hc, Wc, 3, 6): the ridge regression of every centre."""
     nb = q.shape[0]
@@ -183,7 +184,7 @@ def _regress(q, beta, window, stride):
                 _solve(acc, c, beta[b, i, j, c])
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _reconstruct(q, beta, out, window, stride, lo, hi):
     """out (B, 3, H, W) float64: eq. (5) over the covering centres, clamped >= 0."""
     nb, _, h, w = q.shape
@@ -237,6 +238,7 @@ def _reconstruct(q, beta, out, window, stride, lo, hi):
 
 
 @fast_kernel("CrossRegression")
+@nan_on_nonfinite(4)
 def cross_regression(
     y_a: np.ndarray,
     y_b: np.ndarray,

@@ -13,39 +13,40 @@ from numba import njit, prange
 
 from .common import add_into, exp_nonpositive, times_pow2
 from .fast_kernel import fast_kernel
+from .nonfinite import nan_on_nonfinite
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _max_acc(dst, a):
     for x in range(dst.shape[0]):
         dst[x] = max(dst[x], a[x])
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _inverse(dst, a):
     for x in range(dst.shape[0]):
         dst[x] = np.float32(1.0) / a[x]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _scale(dst, a):
     for x in range(dst.shape[0]):
         dst[x] *= a[x]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _mul_row(out, p, src):
     for x in range(out.shape[0]):
         out[x] = p[x] * src[x]
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, fastmath=True, error_model="numpy")
 def _fma_row(out, p, src):
     for x in range(out.shape[0]):
         out[x] += p[x] * src[x]
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _kernel_fusion_nb(images, logits, out):
     n_img, n_s, h, w = logits.shape
     n_ch = out.shape[1]
@@ -75,6 +76,7 @@ def _kernel_fusion_nb(images, logits, out):
 
 
 @fast_kernel("KernelFusion")
+@nan_on_nonfinite(2, inputs=(1,))  # images only multiply: NaN reaches the output
 def kernel_fusion(images: np.ndarray, logits: np.ndarray, out: np.ndarray) -> None:
     """images (N, S*C, H, W), logits (N, S, H, W) -> out (N, C, H, W)."""
     _kernel_fusion_nb(images, logits, out)

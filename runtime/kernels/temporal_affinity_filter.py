@@ -16,9 +16,10 @@ from rtdenoise.ops.affinity_filter import kernel_size_value
 
 from .affinity_filter import TILE, affinity_taps, normalise, spatial_sums
 from .fast_kernel import fast_kernel
+from .nonfinite import nan_on_nonfinite
 
 
-@njit(parallel=True, cache=True, fastmath=True)
+@njit(parallel=True, cache=True, fastmath=True, error_model="numpy")
 def _temporal_affinity_filter_nb(
     image, features, bandwidth, centre, previous, previous_features, temporal_bandwidth,
     valid, out, k, kt, d,
@@ -43,6 +44,7 @@ def _temporal_affinity_filter_nb(
 
 
 @fast_kernel("TemporalAffinityFilter")
+@nan_on_nonfinite(10)
 def temporal_affinity_filter(
     image: np.ndarray,
     features: np.ndarray,

@@ -4,6 +4,10 @@ A crash or an error mid-write leaves the previous file (or nothing), never a par
 error or Ctrl-C removes the temp file. A killed process (SIGKILL, power loss) leaves it:
 `temp_files_of` finds those of a target (`.<stem>.<random>.tmp<suffix>`), which `denoise-run`
 removes before writing that target again.
+
+Durable: the temp file's data is flushed to disk (fsync) before the rename, and the folder
+after it (where the OS can: POSIX; Windows has no folder fsync), so that after a power loss
+the target is either the old file or the complete new one, never a renamed empty file.
 """
 
 from __future__ import annotations
@@ -36,11 +40,39 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
             os.close(fd)
         yield Path(tmp)
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; give the usual mode
+        fsync_file(tmp)  # the data on disk before the name points at it
         os.replace(tmp, path)
+        fsync_folder(folder)  # the rename itself on disk
     except BaseException:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def fsync_file(path: str | os.PathLike) -> None:
+    """Flush a written file's data to the disk."""
+    fd = os.open(path, os.O_RDONLY if os.name != "nt" else os.O_RDWR)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_folder(folder: str | os.PathLike) -> None:
+    """Flush a folder's entries (a rename in it) to the disk where the OS allows it: POSIX;
+    a no-op on Windows and on file systems that refuse to fsync a folder."""
+    if os.name == "nt" or not hasattr(os, "O_DIRECTORY"):
+        return
+    try:
+        fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # EINVAL: some file systems (e.g. some FUSE mounts) do not support it
+        pass
+    finally:
+        os.close(fd)
 
 
 def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:

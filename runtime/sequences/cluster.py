@@ -279,7 +279,7 @@ def denoise_shot(
     options: dict[str, Any],
 ) -> dict[str, Any]:
     """One shot in a worker: the local path's `run_sequence`, plus `online` as `denoise-run`
-    reports it. options: run_sequence's keywords (half, preview, overwrite, resume)."""
+    reports it. options: run_sequence's keywords (half, preview, overwrite, resume, max_pixels)."""
     options = dict(options)
     if isinstance(backend, BackendSpec):
         _set_threads(backend.threads)
@@ -308,6 +308,7 @@ def run_shots(
     preview: bool = False,
     overwrite: bool = False,
     resume: bool = False,
+    max_pixels: int | None = None,
     num_cpus: float | None = None,
     num_gpus: float = 0,
     max_retries: int = DEFAULT_RETRIES,
@@ -328,7 +329,13 @@ def run_shots(
     if num_cpus is None:
         threads = backend.threads if isinstance(backend, BackendSpec) else None
         num_cpus = threads or 1
-    options = {"half": half, "preview": preview, "overwrite": overwrite, "resume": resume}
+    options = {
+        "half": half,
+        "preview": preview,
+        "overwrite": overwrite,
+        "resume": resume,
+        "max_pixels": max_pixels,
+    }
     return run_tasks(
         denoise_shot,
         [(job.name, (job, backend, layout, dict(overrides or {}), options)) for job in jobs],

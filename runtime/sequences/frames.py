@@ -38,7 +38,7 @@ import numpy as np
 from ..contract import BUFFER_CHANNELS, HALF_MAX, SAMPLES
 from ..errors import InputError
 from ..guard import replace_nonfinite
-from .exr import read_exr, read_exr_header, write_exr
+from .exr import Window, read_exr, read_exr_header, write_exr
 from .layouts import Layout, check_channels, get_layout, resolve_channels, stack_buffers
 from .samples import DEFAULT_SAMPLE_FEATURES, SamplePlan, plan_samples, samples_from_buffers
 
@@ -521,10 +521,12 @@ def as_written(rgb: np.ndarray, half: bool = True) -> np.ndarray:
     return quantize_output(rgb, half).astype(np.float32, copy=False)
 
 
-def write_rgb(path: Spec, data: np.ndarray, half: bool = True) -> Path:
+def write_rgb(
+    path: Spec, data: np.ndarray, half: bool = True, windows: tuple[Window, Window] | None = None
+) -> Path:
     """Write a (3, H, W) array from `quantize_output` as channels R,G,B (ZIP), atomically,
-    without converting it again."""
-    return write_exr(path, {"R": data[0], "G": data[1], "B": data[2]}, half=half)
+    without converting it again; `windows`: the (data, display) windows to keep."""
+    return write_exr(path, {"R": data[0], "G": data[1], "B": data[2]}, half=half, windows=windows)
 
 
 def write_output(path: Spec, rgb: np.ndarray, half: bool = True) -> Path:

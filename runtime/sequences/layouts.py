@@ -201,6 +201,10 @@ def load_layout(path: str | os.PathLike) -> Layout:
         raise InputError(f"{path}: no such layout file") from None
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise InputError(f"{path}: not a readable TOML layout file: {exc}") from None
+    except RecursionError:  # tomllib parses nested arrays and tables recursively
+        raise InputError(
+            f"{path}: not a readable TOML layout file: nested too deep (a layout has two levels)"
+        ) from None
     layout = parse_layout(data, path.stem, str(path))
     return Layout(**{**layout.__dict__, "path": path})
 

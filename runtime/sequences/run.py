@@ -32,7 +32,7 @@ from ..errors import InputError
 from ..guard import nonfinite_pixels
 from .atomic import check_writable, temp_files_of
 from .backend import Backend
-from .exr import read_exr
+from .exr import Window, pixel_limit, read_exr, read_exr_header, read_exr_windows
 from .frames import (
     frame_number,
     match_references,
@@ -148,6 +148,30 @@ def _nonfinite_message(pixels: int, buffers: Sequence[str], bad_out: int) -> str
     return "; ".join(parts)
 
 
+def unreadable_output(path: Path, size: tuple[int, int]) -> str | None:
+    """Why an existing output cannot be kept by --resume (its header, its R, G, B at the
+    sequence's (height, width), its pixels decoded), or None when it reads. A file renamed
+    before its data reached the disk (power loss) is empty or truncated."""
+    try:
+        sizes = read_exr_header(path)
+        absent = [c for c in "RGB" if c not in sizes]
+        if absent:
+            return f"no channel {absent[0]!r}"
+        odd = next((c for c in "RGB" if sizes[c] != tuple(size)), None)
+        if odd is not None:
+            (h, w), (eh, ew) = sizes[odd], size
+            return f"channel {odd!r} is {w}x{h}, the sequence is {ew}x{eh}"
+        read_exr(path, list("RGB"))
+    except InputError as exc:
+        return str(exc).removeprefix(f"{path}: ")
+    return None
+
+
+def _box(window: Window) -> str:
+    (x0, y0), (x1, y1) = window
+    return f"({x0},{y0})-({x1},{y1})"
+
+
 def _read_rgb(path: Path) -> np.ndarray:
     """R,G,B of an output file as float32 (3, H, W)."""
     ch = read_exr(path, list("RGB"))
@@ -167,8 +191,13 @@ def run_sequence(
     on_frame: Callable[[], None] = _nothing,
     on_warning: Callable[[str], None] = _nothing,
     reading: Callable[[], AbstractContextManager[Any]] = nullcontext,
+    max_pixels: int | None = None,
 ) -> dict[str, Any]:
     """Denoise one sequence; returns its report (the metrics JSON of one sequence).
+
+    max_pixels: every file's header is refused above this many pixels before any decode
+        (None: `exr.DEFAULT_MAX_PIXELS`); a MemoryError while a frame is read, denoised or
+        written becomes an InputError naming the file and the frame size.
 
     Checks every header, the references and the output paths before writing anything.
     overwrite: replace existing outputs; resume: keep them (those frames are scored from
@@ -181,6 +210,36 @@ def run_sequence(
     reading: a context manager factory wrapped around every file read (the CLI silences
         OpenEXR's own prints on the process's stdout/stderr with it).
     """
+    with pixel_limit(max_pixels):
+        return _run_sequence(
+            job,
+            backend,
+            layout,
+            overrides,
+            half=half,
+            preview=preview,
+            overwrite=overwrite,
+            resume=resume,
+            on_frame=on_frame,
+            on_warning=on_warning,
+            reading=reading,
+        )
+
+
+def _run_sequence(
+    job: Job,
+    backend: Backend,
+    layout: Layout | str,
+    overrides: dict[str, str],
+    *,
+    half: bool,
+    preview: bool,
+    overwrite: bool,
+    resume: bool,
+    on_frame: Callable[[], None],
+    on_warning: Callable[[str], None],
+    reading: Callable[[], AbstractContextManager[Any]],
+) -> dict[str, Any]:
     check_out_dir(job.out_dir)
     needed = getattr(backend, "required_buffers", None)
     per_sample = needed is not None and SAMPLES in needed  # features from the model's config
@@ -202,6 +261,13 @@ def run_sequence(
                 scan_reference(ref, layout, expect_size=size)
     outputs = plan_outputs(job, references, preview)
     done = frames_done(outputs, preview, overwrite=overwrite, resume=resume)
+    for i, out_path in enumerate(outputs):
+        if done[i]:
+            with reading():
+                problem = unreadable_output(out_path, size)
+            if problem:
+                done[i] = False
+                on_warning(f"{out_path}: kept output does not read ({problem}): denoised again")
     stale = remove_stale_temps(outputs, preview)
     if stale:
         on_warning(f"{job.out_dir}: removed {stale} temp files an interrupted run left")
@@ -214,86 +280,109 @@ def run_sequence(
     fed = -1  # index of the last frame the backend has seen (its history ends there)
     segment = 0  # index of the first frame after the last gap
     backend.reset()
-    for i, (path, ref, out_path) in enumerate(zip(job.frames, references, outputs, strict=True)):
-        gap = gap_before(job.frames, i)
-        if gap:
-            segment = i
-            backend.reset()
-            on_warning(
-                f"{path}: {gap} frame{'s' * (gap > 1)} missing before it (frame numbers "
-                f"{frame_number(job.frames[i - 1])} -> {frame_number(path)}): history reset"
-            )
-        if done[i] and ref is None:
-            rows.append(_row(i, path, out_path, None, skipped=True))
-            on_frame()
-            continue
-        if not done[i] and fed != i - 1 and i > segment:  # frames before it were kept:
-            backend.reset()  # rebuild the history from them (not timed, not written)
-            for j in range(max(segment, i - RESUME_WARMUP), i):
+    current = job.frames[0] if job.frames else job.out_dir
+    window = None  # the previous frame's data window
+    try:
+        frames = zip(job.frames, references, outputs, strict=True)
+        for i, (path, ref, out_path) in enumerate(frames):
+            current = path
+            gap = gap_before(job.frames, i)
+            if gap:
+                segment = i
+                backend.reset()
+                on_warning(
+                    f"{path}: {gap} frame{'s' * (gap > 1)} missing before it (frame numbers "
+                    f"{frame_number(job.frames[i - 1])} -> {frame_number(path)}): history reset"
+                )
+            with reading():
+                windows = read_exr_windows(path)
+            if window is not None and windows[0] != window and not gap:
+                segment = i  # the pixels moved on the canvas: the history is not theirs
+                backend.reset()
+                on_warning(
+                    f"{path}: data window {_box(windows[0])} differs from the previous "
+                    f"frame's {_box(window)}: history reset"
+                )
+            window = windows[0]
+            if done[i] and ref is None:
+                rows.append(_row(i, path, out_path, None, skipped=True))
+                on_frame()
+                continue
+            if not done[i] and fed != i - 1 and i > segment:  # frames before it were kept:
+                backend.reset()  # rebuild the history from them (not timed, not written)
+                for j in range(max(segment, i - RESUME_WARMUP), i):
+                    with reading():
+                        warm = plan.read(job.frames[j], index=j)
+                    backend.process(warm.buffers)
+            t0 = time.perf_counter()
+            with reading():
+                frame = plan.read(path, index=i)
+            t1 = time.perf_counter()
+            row = _row(i, path, out_path, ref, skipped=done[i], frame=frame)
+            if done[i]:  # kept from an earlier run: score the file
                 with reading():
-                    warm = plan.read(job.frames[j], index=j)
-                backend.process(warm.buffers)
-        t0 = time.perf_counter()
-        with reading():
-            frame = plan.read(path, index=i)
-        t1 = time.perf_counter()
-        row = _row(i, path, out_path, ref, skipped=done[i], frame=frame)
-        if done[i]:  # kept from an earlier run: score the file
-            with reading():
-                view = _read_rgb(out_path)
-        else:
-            out = np.asarray(backend.process(frame.buffers), dtype=np.float32)
-            fed = i
-            if out.ndim == 4 and out.shape[0] == 1:
-                out = out[0]
-            if out.shape != (3, *size):
-                raise RuntimeError(
-                    f"{path}: the model returned shape {out.shape}, not (3, *{size})"
+                    view = _read_rgb(out_path)
+            else:
+                out = np.asarray(backend.process(frame.buffers), dtype=np.float32)
+                fed = i
+                if out.ndim == 4 and out.shape[0] == 1:
+                    out = out[0]
+                if out.shape != (3, *size):
+                    raise RuntimeError(
+                        f"{path}: the model returned shape {out.shape}, not (3, *{size})"
+                    )
+                bad_mask = nonfinite_pixels(out)
+                bad_out = 0 if bad_mask is None else int(bad_mask.sum())
+                if bad_out:  # a copy: the array may be the backend's own
+                    out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
+                t2 = time.perf_counter()
+                written = quantize_output(out, half)
+                write_rgb(out_path, written, half, windows)
+                # Score and preview what was written: the float32 view of the stored half floats.
+                scored = half and (preview or ref is not None)
+                view = written.astype(np.float32) if scored else written
+                if preview:
+                    write_png(out_path.with_suffix(".png"), view)
+                t3 = time.perf_counter()
+                for key, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2), strict=True):
+                    times[key].append(dt * 1e3)
+                guard = getattr(backend, "last_guard", None)
+                guard_text = guard.summary() if guard is not None else ""
+                row["reset"] = getattr(guard, "reset", None)
+                row["guard"] = guard_text or None
+                message = "; ".join(
+                    m
+                    for m in (
+                        _nonfinite_message(frame.nonfinite, frame.nonfinite_buffers, bad_out),
+                        guard_text,
+                    )
+                    if m
                 )
-            bad_mask = nonfinite_pixels(out)
-            bad_out = 0 if bad_mask is None else int(bad_mask.sum())
-            if bad_out:  # a copy: the array may be the backend's own
-                out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
-            t2 = time.perf_counter()
-            written = quantize_output(out, half)
-            write_rgb(out_path, written, half)
-            # Score and preview what was written: the float32 view of the stored half floats.
-            view = written.astype(np.float32) if half and (preview or ref is not None) else written
-            if preview:
-                write_png(out_path.with_suffix(".png"), view)
-            t3 = time.perf_counter()
-            for key, dt in zip(times, (t1 - t0, t2 - t1, t3 - t2), strict=True):
-                times[key].append(dt * 1e3)
-            guard = getattr(backend, "last_guard", None)
-            guard_text = guard.summary() if guard is not None else ""
-            row["reset"] = getattr(guard, "reset", None)
-            row["guard"] = guard_text or None
-            message = "; ".join(
-                m
-                for m in (
-                    _nonfinite_message(frame.nonfinite, frame.nonfinite_buffers, bad_out),
-                    guard_text,
-                )
-                if m
-            )
-            if message:
-                warnings += 1
-                if warnings <= MAX_WARNINGS:
-                    on_warning(f"{path}: {message}")
-        consecutive = previous_scored and not gap
-        target = None
-        if ref is not None:
-            with reading():
-                target, bad_ref = reference_pixels(ref, layout, expect_size=size)
-            if bad_ref:
-                on_warning(f"{ref}: {bad_ref} reference pixels are NaN/Inf: frame not scored")
-                row["reference_nonfinite"], target = bad_ref, None
-        if target is not None:
-            row.update(scored_out.add(view, target, consecutive=consecutive))
-            row["input"] = scored_in.add(frame.buffers["color"], target, consecutive=consecutive)
-        previous_scored = target is not None
-        rows.append(row)
-        on_frame()
+                if message:
+                    warnings += 1
+                    if warnings <= MAX_WARNINGS:
+                        on_warning(f"{path}: {message}")
+            consecutive = previous_scored and not gap
+            target = None
+            if ref is not None:
+                with reading():
+                    target, bad_ref = reference_pixels(ref, layout, expect_size=size)
+                if bad_ref:
+                    on_warning(f"{ref}: {bad_ref} reference pixels are NaN/Inf: frame not scored")
+                    row["reference_nonfinite"], target = bad_ref, None
+            if target is not None:
+                row.update(scored_out.add(view, target, consecutive=consecutive))
+                color = frame.buffers["color"]
+                row["input"] = scored_in.add(color, target, consecutive=consecutive)
+            previous_scored = target is not None
+            rows.append(row)
+            on_frame()
+    except MemoryError:  # a 24 GiB machine shared by jobs: say which frame, not a traceback
+        raise InputError(
+            f"{current}: out of memory denoising its {size[1]}x{size[0]} frame "
+            f"({size[0] * size[1]} pixels); lower --max-pixels, run fewer jobs at once or "
+            "free memory (the frames before it are complete files: rerun with --resume)"
+        ) from None
     if warnings > MAX_WARNINGS:
         on_warning(
             f"{job.name}: {warnings - MAX_WARNINGS} more frames had input fixed by the guard"

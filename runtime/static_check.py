@@ -1,0 +1,226 @@
+"""Custom-op attributes checked against the model's static shapes when it is loaded.
+
+The fast kernels run each op's spec `check` on the real tensors, but the portable bodies
+(ONNX functions) have no such check: a node whose attributes contradict its inputs
+(SoftmaxKernelApply kernel_size=5 on 49-channel logits) gave a finite, wrong image on the
+portable path. So `check_custom_nodes` reads the main graph's nodes of the rtdenoise domain,
+their int attributes and the shapes the exporter recorded (graph inputs, value_info,
+initializers), and runs the spec's `validate_call` on them. Symbolic sizes are the
+exporter's expressions (`16*hb`, `8*s3`): every symbol is given one value, so that the
+expressions keep their ratios (a half-resolution input stays half), tried with two values;
+the node is refused only when both fail. A node whose inputs lack a recorded shape, or an
+expression that is not plain arithmetic, is left to the run. The
+protobuf is read with the same wire-format reader as `external_data.py` (no `onnx` here).
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+
+from rtdenoise.ops import DOMAIN, SPECS
+
+from .errors import InputError
+from .external_data import _Malformed, _varint
+
+# Field numbers (onnx/onnx.proto3).
+_MODEL_GRAPH = 7
+_GRAPH_NODE, _GRAPH_INIT, _GRAPH_INPUT, _GRAPH_OUTPUT, _GRAPH_VALUE_INFO = 1, 5, 11, 12, 13
+_NODE_INPUT, _NODE_OP, _NODE_DOMAIN, _NODE_ATTR, _NODE_NAME = 1, 4, 7, 5, 3
+_ATTR_NAME, _ATTR_I = 1, 3
+_VI_NAME, _VI_TYPE, _TYPE_TENSOR, _TENSOR_SHAPE, _SHAPE_DIM = 1, 2, 1, 2, 1
+_DIM_VALUE, _DIM_PARAM = 1, 2
+_INIT_DIMS, _INIT_NAME = 1, 8
+_SYMBOL_VALUES = (4, 6)  # each symbol's value in the two tries (16*hb -> 64, then 96)
+
+Dim = int | str
+
+
+def _fields(buf: memoryview) -> Iterator[tuple[int, int | memoryview]]:
+    """(field number, varint value or length-delimited payload) of one message."""
+    i = 0
+    while i < len(buf):
+        key, i = _varint(buf, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _varint(buf, i)
+            yield number, value
+        elif wire in (1, 5):
+            i += 8 if wire == 1 else 4
+        elif wire == 2:
+            size, i = _varint(buf, i)
+            if i + size > len(buf):
+                raise _Malformed("field runs past the end")
+            yield number, buf[i : i + size]
+            i += size
+        else:
+            raise _Malformed(f"unsupported wire type {wire}")
+
+
+def _text(v: int | memoryview) -> str:
+    return bytes(v).decode("utf-8", "replace") if isinstance(v, memoryview) else ""
+
+
+def _signed(v: int) -> int:
+    return v - (1 << 64) if v >= 1 << 63 else v
+
+
+def _value_info(buf: memoryview) -> tuple[str, list[Dim] | None]:
+    name, dims = "", None
+    for n, v in _fields(buf):
+        if n == _VI_NAME:
+            name = _text(v)
+        elif n == _VI_TYPE and isinstance(v, memoryview):
+            for tn, tv in _fields(v):
+                if tn == _TYPE_TENSOR and isinstance(tv, memoryview):
+                    for sn, sv in _fields(tv):
+                        if sn == _TENSOR_SHAPE and isinstance(sv, memoryview):
+                            dims = []
+                            for dn, dv in _fields(sv):
+                                if dn == _SHAPE_DIM and isinstance(dv, memoryview):
+                                    dim: Dim = "?"
+                                    for kn, kv in _fields(dv):
+                                        if kn == _DIM_VALUE and isinstance(kv, int):
+                                            dim = kv
+                                        elif kn == _DIM_PARAM:
+                                            dim = _text(kv) or "?"
+                                    dims.append(dim)
+    return name, dims
+
+
+def _initializer(buf: memoryview) -> tuple[str, list[Dim]]:
+    name, dims = "", []
+    for n, v in _fields(buf):
+        if n == _INIT_NAME:
+            name = _text(v)
+        elif n == _INIT_DIMS:
+            if isinstance(v, int):
+                dims.append(v)
+            else:  # packed
+                i = 0
+                while i < len(v):
+                    d, i = _varint(v, i)
+                    dims.append(d)
+    return name, dims
+
+
+def _graph(data: bytes) -> memoryview | None:
+    for n, v in _fields(memoryview(data)):
+        if n == _MODEL_GRAPH and isinstance(v, memoryview):
+            return v
+    return None
+
+
+def check_custom_nodes(data: bytes, source: str) -> int:
+    """InputError naming the model, the node and the problem when a custom node's int
+    attributes contradict its inputs' recorded shapes; returns the number of nodes checked."""
+    try:
+        graph = _graph(data)
+        if graph is None or DOMAIN.encode() not in bytes(graph):
+            return 0
+        shapes: dict[str, list[Dim]] = {}
+        nodes = []
+        for n, v in _fields(graph):
+            if not isinstance(v, memoryview):
+                continue
+            if n in (_GRAPH_INPUT, _GRAPH_OUTPUT, _GRAPH_VALUE_INFO):
+                name, dims = _value_info(v)
+                if dims is not None:
+                    shapes[name] = dims
+            elif n == _GRAPH_INIT:
+                name, dims = _initializer(v)
+                shapes[name] = dims
+            elif n == _GRAPH_NODE:
+                nodes.append(v)
+        checked = 0
+        for node in nodes:
+            op, domain, name, inputs, attrs = "", "", "", [], {}
+            for fn, fv in _fields(node):
+                if fn == _NODE_OP:
+                    op = _text(fv)
+                elif fn == _NODE_DOMAIN:
+                    domain = _text(fv)
+                elif fn == _NODE_NAME:
+                    name = _text(fv)
+                elif fn == _NODE_INPUT:
+                    inputs.append(_text(fv))
+                elif fn == _NODE_ATTR and isinstance(fv, memoryview):
+                    key, value = "", None
+                    for an, av in _fields(fv):
+                        if an == _ATTR_NAME:
+                            key = _text(av)
+                        elif an == _ATTR_I and isinstance(av, int):
+                            value = _signed(av)
+                    if value is not None:
+                        attrs[key] = value
+            spec = SPECS.get(op)
+            if domain != DOMAIN or spec is None or any(i not in shapes for i in inputs):
+                continue
+            error = None
+            for value in _SYMBOL_VALUES:
+                concrete = [_concrete(shapes[i], value) for i in inputs]
+                if any(c is None for c in concrete):
+                    break  # a size the check cannot evaluate: left to the run
+                try:
+                    spec.validate_call(concrete, attrs)
+                except ValueError as exc:
+                    error = error or exc
+                    continue
+                error = None
+                break
+            if error is not None:
+                exc = error
+                where = f"node {name!r} ({op})" if name else f"a {op} node"
+                shown = ", ".join(f"{i} {tuple(shapes[i])}" for i in inputs)
+                raise InputError(
+                    f"{source}: {where} contradicts its inputs: {exc} (inputs {shown}, "
+                    f"attributes {attrs}); its portable body would give a wrong image"
+                ) from None
+            checked += 1
+        return checked
+    except _Malformed:
+        return 0  # not a model: ONNX Runtime's loader says so, in its words
+
+
+def _concrete(dims: list[Dim], value: int) -> tuple[int, ...] | None:
+    """The shape with every symbol of its expressions set to `value`; None if some dim is
+    unknown or not plain arithmetic."""
+    out = []
+    for d in dims:
+        v = d if isinstance(d, int) else _evaluate(d, value)
+        if v is None or v < 1:
+            return None
+        out.append(v)
+    return tuple(out)
+
+
+def _evaluate(expr: str, value: int) -> int | None:
+    try:
+        tree = ast.parse(expr, mode="eval").body
+    except (SyntaxError, ValueError):
+        return None
+
+    def ev(node: ast.AST) -> int:
+        if isinstance(node, ast.Constant) and isinstance(node.value, int):
+            return node.value
+        if isinstance(node, ast.Name):
+            return value
+        if isinstance(node, ast.BinOp):
+            a, b = ev(node.left), ev(node.right)
+            if isinstance(node.op, ast.Add):
+                return a + b
+            if isinstance(node.op, ast.Sub):
+                return a - b
+            if isinstance(node.op, ast.Mult):
+                return a * b
+            if isinstance(node.op, (ast.FloorDiv, ast.Div)) and b:
+                return a // b
+        raise ValueError(expr)
+
+    try:
+        return ev(tree)
+    except (ValueError, RecursionError):
+        return None
+
+
+__all__ = ["check_custom_nodes"]
