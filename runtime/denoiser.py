@@ -334,6 +334,8 @@ class Denoiser:
             self._restart("non-finite output in the previous frame")
         if report.unusable:
             self._restart("previous frame unusable: " + ", ".join(report.unusable))
+        if self.last_state_nonfinite and self._online.learned:
+            self._restart("non-finite state in the previous frame")
         self._note_guard(report)
         if target is not None:
             store(target, frame)
@@ -422,7 +424,6 @@ class Denoiser:
     def _note_state_nonfinite(self, bad: int) -> None:
         if bad and self._online.learned:  # weights zeroed in place: learn anew
             self._online.restart_learning()
-            self._restart("non-finite state")
         if bad and not self.total_state_nonfinite:
             warnings.warn(
                 f"{self.source}: the model produced {bad} NaN/Inf state values on frame "
