@@ -46,11 +46,13 @@ def build_scheduler(
         return None
     if kind == "onecycle":
         lr = [g["lr"] for g in optimizer.param_groups]
+        # OneCycleLR divides by (warm-up steps - 1): at least 2 warm-up steps, 4 steps in all
+        total = max(4, int(total_steps))
         return torch.optim.lr_scheduler.OneCycleLR(
             optimizer,
             max_lr=lr,
-            total_steps=max(2, int(total_steps)),
-            pct_start=max(warmup, 1e-6),
+            total_steps=total,
+            pct_start=max(warmup, 2.0 / total),
             anneal_strategy="cos",
             div_factor=DIV_FACTOR,
             final_div_factor=FINAL_DIV_FACTOR,

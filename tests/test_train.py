@@ -196,6 +196,45 @@ def test_cli_trains_validates_and_reports_errors(seq_dir, tmp_path):
     assert not (tmp_path / "x.pt").exists()
 
 
+def test_cli_recipe_options_command_in_meta_and_eta_lines(seq_dir, tmp_path, monkeypatch):
+    from rtdenoise.cli.train import Exposure, Loss, Schedule
+    from rtdenoise.models.data import EXPOSURES
+    from rtdenoise.models.losses import LOSSES
+    from rtdenoise.models.schedule import SCHEDULES
+
+    assert [e.value for e in Loss] == list(LOSSES)
+    assert tuple(e.value for e in Schedule) == SCHEDULES
+    assert tuple(e.value for e in Exposure) == EXPOSURES
+    runner = CliRunner()
+    out = tmp_path / "recipe.pt"
+    args = [str(seq_dir), "-o", str(out), "--steps", "4", "--crop", "16", "--frames", "2",
+            "--batch", "1", "--threads", "1", "--loss", "l1-ms-ssim", "--schedule", "onecycle",
+            "--warmup", "0.25", "--rotations", "--permute-channels", "--exposure", "auto",
+            "--log-every", "2", "--cache", str(tmp_path / "cache"), "--config",
+            '{"widths": [8, 8], "kernel_size": 3, "refine_width": 8}']  # fmt: skip
+    monkeypatch.setattr("sys.argv", ["/some/bin/denoise-train", *args])
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    # not a terminal: plain progress lines with the ETA, one per --log-every steps
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("step ")]
+    assert len(lines) == 2 and all("ETA" in ln and "lr" in ln for ln in lines), res.output
+    _, meta = load_checkpoint(out)
+    assert meta["argv"] == ["denoise-train", *args]
+    assert meta["command"].startswith("denoise-train ") and "--loss l1-ms-ssim" in meta["command"]
+    assert meta["commands"] == [meta["command"]]
+    st = meta["settings"]
+    assert (st["loss"], st["schedule"], st["warmup"]) == ("l1-ms-ssim", "onecycle", 0.25)
+    assert st["rotations"] and st["permute"] and st["exposure"] == "auto"
+    assert st["cache"] == str(tmp_path / "cache") and st["log_every"] == 2
+    assert [h[0] for h in meta["loss_history"]] == [2, 4]
+    help_text = runner.invoke(app, ["--help"], env={"COLUMNS": "200"}).output
+    for option in ("--loss", "--schedule", "--warmup", "--rotations", "--permute-channels",
+                   "--exposure", "--cache", "--stop-at", "--log-every"):  # fmt: skip
+        assert option in help_text
+    bad = runner.invoke(app, [*args[:3], "--loss", "l7"])
+    assert bad.exit_code == 2
+
+
 def test_non_finite_loss_stops_training(seq_dir, tmp_path, monkeypatch):
     from rtdenoise.models.registry import family_class
 
