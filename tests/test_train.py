@@ -132,6 +132,7 @@ def test_resume_equals_uninterrupted_run(seq_dir, tmp_path):
     for k, v in a["state_dict"].items():
         assert torch.equal(v, b["state_dict"][k]), k
     assert b["meta"]["step"] == 6 and b["meta"]["resumed_from"] == str(tmp_path / "half.pt")
+    assert len(b["meta"]["commands"]) == 2  # the first run's command line and the resume's
 
 
 def test_periodic_checkpoints(seq_dir, tmp_path, monkeypatch):

@@ -90,3 +90,15 @@ def test_the_scheduler_matters_for_resume(seq_dir, tmp_path, monkeypatch):
     monkeypatch.setattr(torch.optim.lr_scheduler.OneCycleLR, "load_state_dict", lambda *a: None)
     rest = train([seq_dir], half, settings=_settings(6, **s), resume=half, **quiet)
     assert rest.losses != full.losses[3:]
+
+
+def test_progress_lines_and_clock():
+    from rtdenoise.models.progress import TrainProgress, clock
+
+    assert (clock(59.4), clock(61), clock(3 * 3600 + 62)) == ("0:59", "1:01", "3:01:02")
+    lines = []
+    with TrainProgress(10, 2, bar=False, log=lines.append) as p:
+        p.update(3, 0.5, 1e-3)
+        p.window(4, 0.25, 1e-3)
+    (line,) = lines
+    assert line.startswith("step 4/10: loss 0.2500, lr 1.0e-03, ") and "ETA " in line
