@@ -207,6 +207,15 @@ def train_command(
             "training sets larger than memory."
         ),
     ] = None,
+    workers: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="Processes drawing batches ahead (a GPU run needs them). >= 1: batch k comes "
+            "from its own random stream (seed, k), the same for any count; 0: one stream in "
+            "this process (how the demos were trained).",
+        ),
+    ] = 0,
     log_every: Annotated[
         int, typer.Option(min=1, help="Steps per line of progress and loss history entry.")
     ] = 50,
@@ -260,6 +269,7 @@ def train_command(
             stop_at=stop_at,
             cache=str(cache) if cache is not None else None,
             log_every=log_every,
+            workers=workers,
         )
         result = train(
             sequences,

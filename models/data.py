@@ -238,9 +238,12 @@ class ClipSampler:
                 f"crops that are multiples of {multiple}"
             )
 
-    def clip(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """One clip: buffers name -> (T, C, crop, crop), reference (T, 3, crop, crop)."""
-        rng = self.rng
+    def clip(
+        self, rng: np.random.Generator | None = None
+    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """One clip: buffers name -> (T, C, crop, crop), reference (T, 3, crop, crop), drawn
+        from `rng` (default: the sampler's own)."""
+        rng = self.rng if rng is None else rng
         seq = self.sequences[int(rng.integers(len(self.sequences)))]
         t0 = int(rng.integers(seq.frames - self.frames + 1))
         h, w = seq.size
@@ -289,7 +292,7 @@ class ClipSampler:
             arr[:, :, radiance_channels(self.sample_features)] *= np.float32(scale)
         return arr
 
-    def _subsample(self, clips: list) -> None:
+    def _subsample(self, clips: list, rng: np.random.Generator) -> None:
         """Give every clip the same number of samples (in place): a count drawn from
         sample_counts, or fewer if a clip has fewer (without sample_counts: the fewest any clip
         has); a random subset of each clip's samples."""
@@ -298,17 +301,19 @@ class ClipSampler:
         have = [c[0][SAMPLES].shape[1] for c in clips]
         wanted = max(have)
         if self.sample_counts:
-            wanted = self.sample_counts[int(self.rng.integers(len(self.sample_counts)))]
+            wanted = self.sample_counts[int(rng.integers(len(self.sample_counts)))]
         count = min(wanted, *have)
         for (buffers, _), s in zip(clips, have, strict=True):
             if s != count:
-                keep = np.sort(self.rng.choice(s, size=count, replace=False))
+                keep = np.sort(rng.choice(s, size=count, replace=False))
                 buffers[SAMPLES] = np.ascontiguousarray(buffers[SAMPLES][:, keep])
 
-    def sample(self) -> Batch:
-        """A batch of `batch` clips as float32 tensors."""
-        clips = [self.clip() for _ in range(self.batch)]
-        self._subsample(clips)
+    def sample(self, rng: np.random.Generator | None = None) -> Batch:
+        """A batch of `batch` clips as float32 tensors, drawn from `rng` (default: the
+        sampler's own)."""
+        rng = self.rng if rng is None else rng
+        clips = [self.clip(rng) for _ in range(self.batch)]
+        self._subsample(clips, rng)
         names = clips[0][0].keys()
         return Batch(
             buffers={

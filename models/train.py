@@ -34,6 +34,7 @@ from .checkpoint import CheckpointError, load_training_state, save_checkpoint
 from .data import ClipSampler, SequenceData, load_sequences
 from .device import torch_device
 from .frame_loop import FrameLoop, unroll
+from .loader import step_batches
 from .losses import training_loss
 from .progress import TrainProgress
 from .registry import build_model
@@ -66,6 +67,7 @@ class TrainSettings:
     warmup: float = 0.15  # warm-up fraction of the steps of onecycle / cosine
     cache: str | None = None  # folder of the memory-mapped sequence cache (models.cache)
     stop_at: int | None = None  # end this call after this step (the schedule spans `steps`)
+    workers: int = 0  # >= 1: batch k from stream (seed, k), drawn by worker processes
 
 
 @dataclass
@@ -278,9 +280,12 @@ def train(
     t0 = time.perf_counter()
     bar = progress and _stderr_is_terminal()
     last = s.steps if s.stop_at is None else max(step, min(s.steps, int(s.stop_at)))
+    if s.workers:  # batch k depends on (seed, k) only: no sampler state to resume
+        batches = step_batches(sampler, s.seed, step, last, s.workers)
+    else:  # one stream in this process, saved in the checkpoint
+        batches = (sampler.sample() for _ in range(step, last))
     with TrainProgress(last, step, bar=bar, log=log) as shown:
-        while step < last:
-            batch = sampler.sample()
+        for batch in batches:
             buffers = {k: v.to(device, non_blocking=True) for k, v in batch.buffers.items()}
             outputs = unroll(model, buffers)
             loss = loss_fn(outputs, batch.reference.to(device), s.temporal_weight)
