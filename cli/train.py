@@ -238,7 +238,7 @@ def train_command(
     (torch).
 
     OIDN-like recipe: --loss l1-ms-ssim --schedule onecycle --rotations --permute-channels
-    --crop 256 --batch 16.
+    --crop 256 --batch 16 --cache DIR --workers 8.
     """
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
