@@ -178,9 +178,8 @@ def train(
     checkpoint (its family / config win over `family` / `model_config`) and training continues
     up to `settings.steps` (or `settings.stop_at`: a long schedule run in pieces). `progress`:
     a rich bar where stderr is a terminal, else (and without it) a line per logging window with
-    the ETA. `command`: the command line recorded
-    in the meta (default: this process's argv). Returns the per-step losses of this call and
-    validation metrics.
+    the ETA. `command`: the command line recorded in the meta (default: this process's argv).
+    Returns the per-step losses of this call and validation metrics.
     """
     s = settings or TrainSettings()
     device = torch_device(s.device)
