@@ -97,7 +97,8 @@ def _transform_array(
     out = np.flip(arr, axis=axes) if axes else arr
     if t.rotation % 4:
         out = np.rot90(out, k=t.rotation % 4, axes=(-2, -1))
-    out = np.array(out, copy=True)  # contiguous, owned: the vector / colour edits below
+    # one owned, contiguous float32 copy (also of a memory-mapped float16 view) for the edits
+    out = np.array(out, dtype=np.float32, copy=True)
     for cx, cy, y_down in vectors:
         x, y = out[..., cx, :, :].copy(), out[..., cy, :, :].copy()
         if t.flip_h:
@@ -119,7 +120,8 @@ def apply_transform(
     sample_features: Sequence[str] = (),
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """`transform` applied to every buffer (by its meaning, see the module docstring) and to
-    the reference (an RGB image); new arrays. An odd number of quarter turns swaps H and W."""
+    the reference (an RGB image); new float32 arrays (the inputs unchanged when `transform` is
+    the identity). An odd number of quarter turns swaps H and W."""
     if transform.identity:
         return dict(buffers), reference
     out = {}

@@ -261,16 +261,24 @@ class ClipSampler:
             slice(y0, y0 + self.crop),
             slice(x0, x0 + self.crop),
         )
-        # float32 copies of the crop (a memory-mapped sequence pages in only these rows)
-        buffers = {n: np.array(a[window], dtype=np.float32) for n, a in seq.buffers.items()}
-        reference = np.array(seq.reference[window], dtype=np.float32)
+        # views of the crop (a memory-mapped sequence pages in only these rows), then one
+        # owned float32 copy each: the transform's, or a plain one
+        buffers = {n: a[window] for n, a in seq.buffers.items()}
+        reference = seq.reference[window]
         transform = Transform(flip_h, flip_v, turns, perm)
-        buffers, reference = apply_transform(buffers, reference, transform, self.sample_features)
+        if transform.identity:
+            buffers = {n: np.array(a, dtype=np.float32) for n, a in buffers.items()}
+            reference = np.array(reference, dtype=np.float32)
+        else:
+            buffers, reference = apply_transform(
+                buffers, reference, transform, self.sample_features
+            )
         if self.exposure == "auto":
             scale *= self._exposure(buffers)
         if scale != 1.0:
-            buffers = {name: self._brighter(name, arr, scale) for name, arr in buffers.items()}
-            reference = reference * np.float32(scale)
+            for name, arr in buffers.items():
+                self._brighten(name, arr, scale)
+            reference *= np.float32(scale)
         return buffers, reference
 
     def _exposure(self, buffers: dict[str, np.ndarray]) -> float:
@@ -284,13 +292,12 @@ class ClipSampler:
             raise InputError("exposure 'auto' needs the color buffer among the model's inputs")
         return float(autoexposure(torch.from_numpy(np.ascontiguousarray(color))[None])[0])
 
-    def _brighter(self, name: str, arr: np.ndarray, scale: float) -> np.ndarray:
+    def _brighten(self, name: str, arr: np.ndarray, scale: float) -> None:
+        """Scale the radiance of one buffer of a clip in place (its own float32 copy)."""
         if name in RADIANCE_BUFFERS:
-            return arr * np.float32(scale)
-        if name == SAMPLES:
-            arr = arr.copy()
+            arr *= np.float32(scale)
+        elif name == SAMPLES:
             arr[:, :, radiance_channels(self.sample_features)] *= np.float32(scale)
-        return arr
 
     def _subsample(self, clips: list, rng: np.random.Generator) -> None:
         """Give every clip the same number of samples (in place): a count drawn from
