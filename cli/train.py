@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shlex
 import sys
+from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
@@ -26,6 +27,29 @@ app = typer.Typer(
     no_args_is_help=True,
     rich_markup_mode="markdown",
 )
+
+
+class Loss(str, Enum):
+    """models.losses.LOSSES (named here without importing torch)."""
+
+    paper = "paper"
+    smape = "smape"
+    l1_ms_ssim = "l1-ms-ssim"
+
+
+class Schedule(str, Enum):
+    """models.schedule.SCHEDULES."""
+
+    constant = "constant"
+    onecycle = "onecycle"
+    cosine = "cosine"
+
+
+class Exposure(str, Enum):
+    """models.data.EXPOSURES."""
+
+    none = "none"
+    auto = "auto"
 
 
 def _parse_config(text: str | None) -> dict | None:
@@ -76,7 +100,9 @@ def train_command(
     ] = "afn",
     family_module: FamilyModuleOption = None,
     steps: Annotated[int, typer.Option(min=1, help="Total optimisation steps.")] = 1000,
-    crop: Annotated[int, typer.Option(min=8, help="Crop size in pixels.")] = 128,
+    crop: Annotated[
+        int, typer.Option(min=8, help="Square crop side in pixels (at most the frame size).")
+    ] = 128,
     frames: Annotated[int, typer.Option(min=1, help="Frames per clip.")] = 8,
     batch: Annotated[int, typer.Option(min=1, help="Clips per step.")] = 4,
     lr: Annotated[float, typer.Option(min=0.0, help="Adam learning rate.")] = 1e-3,
@@ -89,7 +115,12 @@ def train_command(
         typer.Option(help="Validation sequence folder (repeatable): PSNR at the end."),
     ] = None,
     temporal_weight: Annotated[
-        float, typer.Option(min=0.0, help="Weight of the temporal SMAPE term.")
+        float,
+        typer.Option(
+            min=0.0,
+            help="Weight of the temporal term (temporal SMAPE; for l1-ms-ssim the L1 of frame "
+            "differences).",
+        ),
     ] = 0.25,
     brightness: Annotated[
         str, typer.Option(help="Random brightness range LOW,HIGH (1,1 disables).")
@@ -107,13 +138,84 @@ def train_command(
         str | None,
         typer.Option(help="Model config overrides: a JSON object or a JSON file."),
     ] = None,
-    progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    progress: Annotated[
+        bool,
+        typer.Option(
+            help="A progress bar with the ETA on a terminal; elsewhere (a log, a pipe) and "
+            "with --no-progress a line per --log-every steps with the ETA."
+        ),
+    ] = True,
     samples: Annotated[
         str | None,
         typer.Option(
             help="Per-sample models: sample counts S drawn per batch, e.g. 1,2,4 (default: all)."
         ),
     ] = None,
+    loss: Annotated[
+        Loss,
+        typer.Option(
+            help="paper: the family's own loss (SMAPE + temporal SMAPE for afn / wskp, Isik21 "
+            "eq. 9 for affinity, Meng20's gamma L1 for nbg); smape: SMAPE + temporal SMAPE for "
+            "any family; l1-ms-ssim: Open Image Denoise's 0.16 L1 + 0.84 (1 - MS-SSIM) on a "
+            "PU-like curve of the auto-exposed colours, + --temporal-weight x the L1 of frame "
+            "differences."
+        ),
+    ] = Loss.paper,
+    rotations: Annotated[
+        bool,
+        typer.Option(help="Random 90-degree rotations (motion and normals turn with them)."),
+    ] = False,
+    permute_channels: Annotated[
+        bool,
+        typer.Option(
+            help="Random permutation of R, G, B (the same for color, albedo, reference, samples)."
+        ),
+    ] = False,
+    exposure: Annotated[
+        Exposure,
+        typer.Option(
+            help="auto: scale each clip's radiance and reference to the auto-exposure of its "
+            "noisy colour (key 0.18) before --brightness; none: raw renderer values."
+        ),
+    ] = Exposure.none,
+    schedule: Annotated[
+        Schedule,
+        typer.Option(
+            help="Learning rate over --steps: constant --lr; onecycle (lr/25 -> --lr over "
+            "--warmup, cosine down to lr/25/1e4); cosine (linear warm-up, cosine decay)."
+        ),
+    ] = Schedule.constant,
+    warmup: Annotated[
+        float,
+        typer.Option(min=0.0, max=0.99, help="Warm-up fraction of --steps (onecycle, cosine)."),
+    ] = 0.15,
+    stop_at: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Stop after this step (the schedule still spans --steps); continue later with "
+            "--resume: a long run in pieces.",
+        ),
+    ] = None,
+    cache: Annotated[
+        Path | None,
+        typer.Option(
+            help="Convert the sequences once into this folder (.npy) and memory-map them: "
+            "training sets larger than memory."
+        ),
+    ] = None,
+    workers: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="Processes drawing batches ahead (a GPU run needs them). >= 1: batch k comes "
+            "from its own random stream (seed, k), the same for any count; 0: one stream in "
+            "this process (how the demos were trained).",
+        ),
+    ] = 0,
+    log_every: Annotated[
+        int, typer.Option(min=1, help="Steps per line of progress and loss history entry.")
+    ] = 50,
     version: VersionOption = False,
 ) -> None:
     """Train a denoiser on sequences in the canonical EXR layout and write a checkpoint.
@@ -123,11 +225,17 @@ def train_command(
     ref_NNNN.exr (R,G,B reference).
 
     Every step draws --batch clips of --frames consecutive frames with one random --crop,
-    flip and brightness per clip, unrolls the model over the clip (state carried, reset on
-    its first frame) and minimises SMAPE (Lee24 eq. 5) + --temporal-weight x temporal SMAPE
-    (Isik21 eq. 12) with Adam. The checkpoint {family, config, state_dict, meta} is written
-    atomically every --save-every steps and at the end; --resume continues a run exactly.
-    Needs the train extra (torch).
+    flip (and with --rotations a quarter turn, with --permute-channels a colour permutation)
+    and brightness per clip, unrolls the model over the clip (state carried, reset on its
+    first frame) and minimises --loss (default: the family's own, e.g. SMAPE (Lee24 eq. 5) +
+    --temporal-weight x temporal SMAPE (Isik21 eq. 12)) with Adam under --schedule. The
+    checkpoint {family, config, state_dict, meta} is written atomically every --save-every
+    steps and at the end; its meta holds this command line and every setting; --resume
+    continues a run exactly (optimizer, schedule and RNG states). Needs the train extra
+    (torch).
+
+    OIDN-like recipe: --loss l1-ms-ssim --schedule onecycle --rotations --permute-channels
+    --crop 256 --batch 16 --cache DIR --workers 8.
     """
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
@@ -150,6 +258,16 @@ def train_command(
             threads=threads,
             sample_counts=sample_counts,
             device=device,
+            loss=loss.value,
+            rotations=rotations,
+            permute=permute_channels,
+            exposure=exposure.value,
+            schedule=schedule.value,
+            warmup=warmup,
+            stop_at=stop_at,
+            cache=str(cache) if cache is not None else None,
+            log_every=log_every,
+            workers=workers,
         )
         result = train(
             sequences,

@@ -1,18 +1,32 @@
-"""Training data: whole sequences in memory -> batches of randomly cropped, flipped clips.
+"""Training data: sequences (in memory or memory-mapped) -> batches of augmented clips.
 
 A sequence is a folder in the canonical EXR layout (docs/contract.md, "EXR layout"):
 `frame_NNNN.exr` and `ref_NNNN.exr`. A training sample is a clip of F consecutive frames of
-one sequence with one random crop, flip and brightness factor shared by all its frames
-(Lee24 IV-B: random 128 x 128 crops, horizontal / vertical flips, brightness in [0.8, 1.2]).
+one sequence with one random crop, augmentation and brightness factor shared by all its frames
+(Lee24 IV-B: random 128 x 128 crops, horizontal / vertical flips, brightness in [0.8, 1.2];
+Isik21 4.3 and Fan21's official code add 90-degree rotations; Open Image Denoise permutes the
+colour channels). The geometric and colour rules are models/augment.py's: flips and quarter
+turns transform motion and camera-space normals with the image, depth is unchanged, a colour
+permutation applies alike to color, color_b, albedo, the reference and the samples' colours.
 
-Flips keep the buffers' meaning: a horizontal flip negates motion.x and normal.x, a
-vertical flip motion.y and normal.y (screen-space conventions: x right, y down for motion).
+Exposure (`exposure="auto"`): each clip's radiance and reference are scaled by the
+auto-exposure of its noisy colour (models/transfer.py: key 0.18 / geometric mean of block
+luminance), before the brightness factor. The ONNX contract feeds raw renderer radiance and the
+shipped families tonemap inside the graph (log1p, gamma), so they are scale-dependent and a
+model trained only on normalised clips would see other scales at run time: "auto" is meant
+with a wide --brightness range around it (the scales a renderer produces), and "none" (raw
+values, the default) is what every shipped demo was trained with.
 
 Per-sample input (the rank-5 `samples` buffer, (T, S, C, H, W) in memory): its features are
-named by the model's config (runtime/sequences/samples.py); flips negate the x / y of its
-normals, the brightness factor scales its radiance, and `sample_counts` (e.g. (1, 2, 4); Isik21
-4.3 takes them round robin per epoch, here one is drawn per batch, which a resumed run
-reproduces) keeps a random subset of S samples of every clip of a batch.
+named by the model's config (runtime/sequences/samples.py); the augmentation treats its normals and
+colours like the pixel buffers, the brightness factor scales its radiance, and
+`sample_counts` (e.g. (1, 2, 4); Isik21 4.3 takes them round robin per epoch, here one is drawn
+per batch, which a resumed run reproduces) keeps a random subset of S samples of every clip of
+a batch.
+
+Sequences live in memory as float32 (`load_sequences`), or, with a cache folder, as
+memory-mapped .npy files (models/cache.py) that the operating system pages in per crop, for
+training sets larger than memory.
 """
 
 from __future__ import annotations
@@ -33,16 +47,21 @@ from rtdenoise.runtime.sequences.frames import (
     read_frame,
     read_reference,
 )
-from rtdenoise.runtime.sequences.samples import radiance_channels, signed_channels
+from rtdenoise.runtime.sequences.samples import radiance_channels
+
+from .augment import Transform, apply_transform, permutations
+from .transfer import autoexposure
 
 # Buffers whose x / y components flip sign with the image (channel 0 = x, 1 = y), and the
 # ones that carry radiance (scaled by the brightness augmentation with the reference).
 SIGNED_BUFFERS = SCREEN_XY_BUFFERS
+EXPOSURES = ("none", "auto")
 
 
 @dataclass
 class SequenceData:
-    """One sequence in memory: buffers name -> (T, C, H, W) and reference (T, 3, H, W)."""
+    """One sequence: buffers name -> (T, C, H, W) and reference (T, 3, H, W), float32 arrays
+    in memory or memory-mapped float16 / float32 arrays (models/cache.py)."""
 
     name: str
     buffers: dict[str, np.ndarray]
@@ -56,6 +75,15 @@ class SequenceData:
     def size(self) -> tuple[int, int]:
         """(height, width)."""
         return int(self.reference.shape[2]), int(self.reference.shape[3])
+
+    def frame(self, i: int) -> dict[str, np.ndarray]:
+        """Frame `i`'s buffers as float32 arrays (what the frame loop reads)."""
+        return {n: np.asarray(a[i], dtype=np.float32) for n, a in self.buffers.items()}
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its arrays (on disk for a memory-mapped sequence)."""
+        return sum(a.nbytes for a in self.buffers.values()) + self.reference.nbytes
 
 
 def load_sequence(
@@ -94,15 +122,50 @@ def load_sequence(
     )
 
 
+def available_memory() -> int | None:
+    """Bytes of memory available to new allocations (Linux MemAvailable), None elsewhere."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+# In-memory loading refuses a training set estimated above this share of the available memory.
+MEMORY_SHARE = 0.5
+
+
 def load_sequences(
     folders: Sequence[str | os.PathLike],
     buffers: Sequence[str],
     sample_features: Sequence[str] | None = None,
+    cache: str | os.PathLike | None = None,
 ) -> list[SequenceData]:
-    """`load_sequence` for each folder; InputError if none is given."""
+    """`load_sequence` for each folder, or with `cache` (a folder) each sequence converted once
+    to .npy files there and memory-mapped (models/cache.py); InputError if none is given.
+
+    In memory, the first sequence's size times their number is checked against the available
+    memory first: above MEMORY_SHARE of it, InputError asks for a cache folder instead of
+    letting the kernel kill the run after minutes of reading.
+    """
     if not folders:
         raise InputError("no training sequences given")
-    return [load_sequence(f, buffers, sample_features) for f in folders]
+    if cache is not None:
+        from .cache import cached_sequence
+
+        return [cached_sequence(f, buffers, sample_features, cache) for f in folders]
+    first = load_sequence(folders[0], buffers, sample_features)
+    estimate, free = first.nbytes * len(folders), available_memory()
+    if free is not None and estimate > MEMORY_SHARE * free:
+        raise InputError(
+            f"{len(folders)} sequences like {folders[0]} need about {estimate / 2**30:.1f} GiB "
+            f"as float32 in memory, {free / 2**30:.1f} GiB are available: give a cache folder "
+            f"(denoise-train --cache DIR) to memory-map them instead"
+        )
+    return [first, *(load_sequence(f, buffers, sample_features) for f in folders[1:])]
 
 
 def flip(
@@ -114,25 +177,8 @@ def flip(
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Flip (..., C, H, W) arrays; negate the x (horizontal) / y (vertical) component of
     motion and normal (also the normals among the `sample_features` of `samples`) so that
-    they still describe the flipped image."""
-    axes = tuple(ax for ax, on in ((-1, horizontal), (-2, vertical)) if on)
-    if not axes:
-        return buffers, reference
-    out = {}
-    for name, arr in buffers.items():
-        arr = np.flip(arr, axis=axes).copy()
-        if name == SAMPLES:
-            if not sample_features:
-                raise InputError("flipping the samples buffer needs its sample features")
-            xs, ys = signed_channels(sample_features)
-        else:
-            xs, ys = ([0], [1]) if name in SIGNED_BUFFERS else ([], [])
-        for c in xs if horizontal else ():
-            arr[..., c, :, :] *= -1.0
-        for c in ys if vertical else ():
-            arr[..., c, :, :] *= -1.0
-        out[name] = arr
-    return out, np.flip(reference, axis=axes).copy()
+    they still describe the flipped image (models/augment.py, a Transform of flips only)."""
+    return apply_transform(buffers, reference, Transform(horizontal, vertical), sample_features)
 
 
 @dataclass
@@ -144,11 +190,15 @@ class Batch:
 
 
 class ClipSampler:
-    """Draws batches of clips (same crop / flip / brightness for every frame of a clip).
+    """Draws batches of clips (same crop / augmentation / brightness for every frame of a clip).
 
     Clip length is min(frames, shortest sequence); crop size is min(crop, smallest frame
-    side) rounded down to `multiple` (the model's pad_multiple). All randomness comes from
-    `rng` (a numpy Generator), so a saved `rng.bit_generator.state` resumes the stream.
+    side) rounded down to `multiple` (the model's pad_multiple). `flips`: random horizontal
+    and vertical flips; `rotations`: a random number of quarter turns; `permute`: a random
+    permutation of the colour channels (models/augment.py); `exposure`: "none" or "auto" (the
+    module docstring). All randomness comes from `rng` (a numpy Generator), so a saved
+    `rng.bit_generator.state` resumes the stream; an option that is off draws nothing, so the
+    stream of a run without the newer options is the one it always was.
     """
 
     def __init__(
@@ -164,13 +214,21 @@ class ClipSampler:
         brightness: tuple[float, float] = (0.8, 1.2),
         sample_features: Sequence[str] = (),
         sample_counts: Sequence[int] = (),
+        rotations: bool = False,
+        permute: bool = False,
+        exposure: str = "none",
     ) -> None:
         if not sequences:
             raise InputError("no training sequences given")
+        if exposure not in EXPOSURES:
+            raise InputError(f"exposure must be one of {', '.join(EXPOSURES)}, got {exposure!r}")
         self.sequences = list(sequences)
         self.rng = rng
         self.batch = int(batch)
         self.flips = flips
+        self.rotations = rotations
+        self.permute = permute
+        self.exposure = exposure
         self.brightness = (float(brightness[0]), float(brightness[1]))
         self.sample_features = tuple(sample_features)
         self.sample_counts = tuple(int(s) for s in sample_counts)
@@ -185,9 +243,12 @@ class ClipSampler:
                 f"crops that are multiples of {multiple}"
             )
 
-    def clip(self) -> tuple[dict[str, np.ndarray], np.ndarray]:
-        """One clip: buffers name -> (T, C, crop, crop), reference (T, 3, crop, crop)."""
-        rng = self.rng
+    def clip(
+        self, rng: np.random.Generator | None = None
+    ) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """One clip: buffers name -> (T, C, crop, crop), reference (T, 3, crop, crop), drawn
+        from `rng` (default: the sampler's own)."""
+        rng = self.rng if rng is None else rng
         seq = self.sequences[int(rng.integers(len(self.sequences)))]
         t0 = int(rng.integers(seq.frames - self.frames + 1))
         h, w = seq.size
@@ -197,29 +258,53 @@ class ClipSampler:
         if self.flips:
             flip_h, flip_v = (bool(b) for b in rng.integers(2, size=2))
         scale = float(rng.uniform(*self.brightness))
+        turns = int(rng.integers(4)) if self.rotations else 0
+        perm = permutations()[int(rng.integers(6))] if self.permute else (0, 1, 2)
         window = (
             slice(t0, t0 + self.frames),
             Ellipsis,
             slice(y0, y0 + self.crop),
             slice(x0, x0 + self.crop),
         )
-        buffers = {name: arr[window] for name, arr in seq.buffers.items()}
+        # views of the crop (a memory-mapped sequence pages in only these rows), then one
+        # owned float32 copy each: the transform's, or a plain one
+        buffers = {n: a[window] for n, a in seq.buffers.items()}
         reference = seq.reference[window]
-        buffers, reference = flip(buffers, reference, flip_h, flip_v, self.sample_features)
+        transform = Transform(flip_h, flip_v, turns, perm)
+        if transform.identity:
+            buffers = {n: np.array(a, dtype=np.float32) for n, a in buffers.items()}
+            reference = np.array(reference, dtype=np.float32)
+        else:
+            buffers, reference = apply_transform(
+                buffers, reference, transform, self.sample_features
+            )
+        if self.exposure == "auto":
+            scale *= self._exposure(buffers)
         if scale != 1.0:
-            buffers = {name: self._brighter(name, arr, scale) for name, arr in buffers.items()}
-            reference = reference * np.float32(scale)
+            for name, arr in buffers.items():
+                self._brighten(name, arr, scale)
+            reference *= np.float32(scale)
         return buffers, reference
 
-    def _brighter(self, name: str, arr: np.ndarray, scale: float) -> np.ndarray:
-        if name in RADIANCE_BUFFERS:
-            return arr * np.float32(scale)
-        if name == SAMPLES:
-            arr = arr.copy()
-            arr[:, :, radiance_channels(self.sample_features)] *= np.float32(scale)
-        return arr
+    def _exposure(self, buffers: dict[str, np.ndarray]) -> float:
+        """Auto-exposure of the clip's noisy colour (the samples' mean radiance for a model
+        that reads only `samples`)."""
+        if "color" in buffers:
+            color = buffers["color"]
+        elif SAMPLES in buffers:
+            color = buffers[SAMPLES][:, :, radiance_channels(self.sample_features)[:3]].mean(1)
+        else:
+            raise InputError("exposure 'auto' needs the color buffer among the model's inputs")
+        return float(autoexposure(torch.from_numpy(np.ascontiguousarray(color))[None])[0])
 
-    def _subsample(self, clips: list) -> None:
+    def _brighten(self, name: str, arr: np.ndarray, scale: float) -> None:
+        """Scale the radiance of one buffer of a clip in place (its own float32 copy)."""
+        if name in RADIANCE_BUFFERS:
+            arr *= np.float32(scale)
+        elif name == SAMPLES:
+            arr[:, :, radiance_channels(self.sample_features)] *= np.float32(scale)
+
+    def _subsample(self, clips: list, rng: np.random.Generator) -> None:
         """Give every clip the same number of samples (in place): a count drawn from
         sample_counts, or fewer if a clip has fewer (without sample_counts: the fewest any clip
         has); a random subset of each clip's samples."""
@@ -228,17 +313,19 @@ class ClipSampler:
         have = [c[0][SAMPLES].shape[1] for c in clips]
         wanted = max(have)
         if self.sample_counts:
-            wanted = self.sample_counts[int(self.rng.integers(len(self.sample_counts)))]
+            wanted = self.sample_counts[int(rng.integers(len(self.sample_counts)))]
         count = min(wanted, *have)
         for (buffers, _), s in zip(clips, have, strict=True):
             if s != count:
-                keep = np.sort(self.rng.choice(s, size=count, replace=False))
+                keep = np.sort(rng.choice(s, size=count, replace=False))
                 buffers[SAMPLES] = np.ascontiguousarray(buffers[SAMPLES][:, keep])
 
-    def sample(self) -> Batch:
-        """A batch of `batch` clips as float32 tensors."""
-        clips = [self.clip() for _ in range(self.batch)]
-        self._subsample(clips)
+    def sample(self, rng: np.random.Generator | None = None) -> Batch:
+        """A batch of `batch` clips as float32 tensors, drawn from `rng` (default: the
+        sampler's own)."""
+        rng = self.rng if rng is None else rng
+        clips = [self.clip(rng) for _ in range(self.batch)]
+        self._subsample(clips, rng)
         names = clips[0][0].keys()
         return Batch(
             buffers={

@@ -1,10 +1,24 @@
-"""Training losses: SMAPE (Lee24 eq. (5)) and temporal SMAPE (Isik21 eq. (12))."""
+"""Training losses: SMAPE (Lee24 eq. (5)), temporal SMAPE (Isik21 eq. (12)) and Open Image
+Denoise's L1 + MS-SSIM on a perceptual transfer curve; `LOSSES` names the choices of
+`denoise-train --loss`.
+"""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
+from .msssim import ms_ssim
+from .transfer import exposed_transfer
+
 SMAPE_EPS = 1e-3  # Lee24 eq. (5): epsilon = 0.001
+# Zhao et al. 2017 ("Loss functions for image restoration with neural networks", eq. (4)):
+# alpha = 0.84 on MS-SSIM, 1 - alpha on L1; the mix Open Image Denoise trains with.
+MS_SSIM_WEIGHT = 0.84
+L1_WEIGHT = 1.0 - MS_SSIM_WEIGHT
+
+LossFn = Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor]
 
 
 def smape(output: torch.Tensor, target: torch.Tensor, eps: float = SMAPE_EPS) -> torch.Tensor:
@@ -41,3 +55,56 @@ def sequence_loss(
     if temporal_weight:
         loss = loss + temporal_weight * temporal_smape(outputs, targets, eps)
     return loss
+
+
+def l1_ms_ssim_loss(
+    outputs: torch.Tensor, targets: torch.Tensor, temporal_weight: float = 0.0
+) -> torch.Tensor:
+    """Open Image Denoise's loss on clips (N, T, 3, H, W): 0.16 L1 + 0.84 (1 - MS-SSIM), both
+    on T(e x) (models/transfer.py: e = the auto-exposure of each clip's reference, T the
+    PU-like curve), MS-SSIM per frame with range 1 (models/msssim.py: fewer scales on small
+    crops). Plus temporal_weight x the L1 of the frame differences in the same domain (OIDN
+    has no temporal term; 0 gives its loss exactly).
+    """
+    if outputs.dim() == 4:  # single frames (N, 3, H, W)
+        outputs, targets = outputs[:, None], targets[:, None]
+    out, ref = exposed_transfer(outputs, targets)
+    frames_out = out.reshape(-1, *out.shape[-3:])
+    frames_ref = ref.reshape(-1, *ref.shape[-3:])
+    l1 = (out - ref).abs().mean()
+    loss = L1_WEIGHT * l1 + MS_SSIM_WEIGHT * (1.0 - ms_ssim(frames_out, frames_ref).mean())
+    if temporal_weight and out.shape[1] > 1:
+        d_out = out[:, 1:] - out[:, :-1]
+        d_ref = ref[:, 1:] - ref[:, :-1]
+        loss = loss + temporal_weight * (d_out - d_ref).abs().mean()
+    return loss
+
+
+# `paper`: the family's own `loss` (each paper's: SMAPE + temporal SMAPE for afn and wskp,
+# Isik21 eq. (9) with its regulariser for affinity, Meng20's gamma L1 for nbg).
+LOSSES: dict[str, LossFn | None] = {
+    "paper": None,
+    "smape": sequence_loss,
+    "l1-ms-ssim": l1_ms_ssim_loss,
+}
+
+
+def training_loss(name: str, model: torch.nn.Module) -> LossFn:
+    """The loss `denoise-train --loss name` minimises for `model`: (outputs, reference,
+    temporal_weight) -> scalar. A replacement of the paper's loss keeps a family's
+    regulariser where the family exposes one as `model.regulariser()` (a scalar, or None)."""
+    if name not in LOSSES:
+        raise ValueError(f"unknown loss {name!r}; choose one of {', '.join(LOSSES)}")
+    fn = LOSSES[name]
+    if fn is None:
+        return model.loss
+    hook = getattr(model, "regulariser", None)
+    if not callable(hook):
+        return fn
+
+    def with_regulariser(outputs, reference, temporal_weight):
+        loss = fn(outputs, reference, temporal_weight)
+        reg = hook()
+        return loss if reg is None else loss + reg
+
+    return with_regulariser

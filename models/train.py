@@ -1,17 +1,21 @@
 """Supervised training of a denoiser on EXR sequences (Lee24 IV-B).
 
-Each step draws a batch of clips (random crop + flips + brightness, models.data), unrolls
-the model over the clip with its state carried (reset = 1 and zero state on the clip's
-first frame), and minimises SMAPE (Lee24 eq. (5)) + w * temporal SMAPE (Isik21 eq. (12))
-with Adam. Checkpoints (models.checkpoint) are written atomically every `save_every` steps
-and at the end; they hold the optimizer state, the step and every RNG state, so that a
-resumed run continues exactly as an uninterrupted one would.
+Each step draws a batch of clips (random crop, flips, quarter turns, colour permutation,
+exposure and brightness, models.data / models.augment), unrolls the model over the clip with
+its state carried (reset = 1 and zero state on the clip's first frame), and minimises the
+chosen loss (models.losses: the family's own, by default SMAPE (Lee24 eq. (5)) + w * temporal
+SMAPE (Isik21 eq. (12)); or Open Image Denoise's L1 + MS-SSIM on a perceptual transfer curve)
+with Adam under a learning-rate schedule (models.schedule). Checkpoints (models.checkpoint) are
+written atomically every `save_every` steps and at the end; they hold the optimizer and
+scheduler states, the step and every RNG state, so that a resumed run continues exactly as an
+uninterrupted one would, and the meta records the command line and every setting.
 """
 
 from __future__ import annotations
 
 import os
 import random
+import shlex
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -30,7 +34,11 @@ from .checkpoint import CheckpointError, load_training_state, save_checkpoint
 from .data import ClipSampler, SequenceData, load_sequences
 from .device import torch_device
 from .frame_loop import FrameLoop, unroll
+from .loader import step_batches
+from .losses import training_loss
+from .progress import TrainProgress
 from .registry import build_model
+from .schedule import build_scheduler, check_resumable, schedule_settings
 
 
 @dataclass
@@ -47,10 +55,19 @@ class TrainSettings:
     brightness: tuple[float, float] = (0.8, 1.2)  # (1, 1) disables it
     flips: bool = True
     save_every: int = 500  # steps between checkpoints (0: only at the end)
-    log_every: int = 50  # window of the loss history kept in meta
+    log_every: int = 50  # window of the loss history kept in meta ([step, mean loss, lr])
     threads: int | None = 2  # torch intra-op threads (None: leave torch's default)
     sample_counts: tuple[int, ...] = ()  # per-sample models: S per batch drawn from these
     device: str = "cpu"  # torch device of the model and batches: cpu, cuda, cuda:N
+    loss: str = "paper"  # models.losses.LOSSES: paper (the family's), smape, l1-ms-ssim
+    rotations: bool = False  # random quarter turns (models.augment)
+    permute: bool = False  # random permutation of the colour channels (models.augment)
+    exposure: str = "none"  # none or auto (models.data)
+    schedule: str = "constant"  # models.schedule.SCHEDULES: constant, onecycle, cosine
+    warmup: float = 0.15  # warm-up fraction of the steps of onecycle / cosine
+    cache: str | None = None  # folder of the memory-mapped sequence cache (models.cache)
+    stop_at: int | None = None  # end this call after this step (the schedule spans `steps`)
+    workers: int = 0  # >= 1: batch k from stream (seed, k), drawn by worker processes
 
 
 @dataclass
@@ -112,10 +129,16 @@ def evaluate(model: DenoiserModel, sequences: Sequence[SequenceData]) -> dict:
     loop = FrameLoop(model)
     per_seq = []
     for seq in sequences:
-        frames = ({n: a[i] for n, a in seq.buffers.items()} for i in range(seq.frames))
+        frames = (seq.frame(i) for i in range(seq.frames))
         outputs = [out[0].cpu().numpy() for out in loop.run(frames)]
-        scores = [psnr(out, ref) for out, ref in zip(outputs, seq.reference, strict=True)]
-        inputs = [psnr(c, ref) for c, ref in zip(seq.buffers["color"], seq.reference, strict=True)]
+        scores = [
+            psnr(out, np.asarray(ref, np.float32))
+            for out, ref in zip(outputs, seq.reference, strict=True)
+        ]
+        inputs = [
+            psnr(np.asarray(c, np.float32), np.asarray(ref, np.float32))
+            for c, ref in zip(seq.buffers["color"], seq.reference, strict=True)
+        ]
         per_seq.append(
             {"name": seq.name, "psnr": float(np.mean(scores)), "input_psnr": float(np.mean(inputs))}
         )
@@ -127,43 +150,13 @@ def evaluate(model: DenoiserModel, sequences: Sequence[SequenceData]) -> dict:
     }
 
 
-class _Progress:
-    """A rich progress bar showing the loss, or nothing."""
-
-    def __init__(self, enabled: bool, total: int, start: int) -> None:
-        self.bar = None
-        if enabled:
-            from rich.progress import (
-                BarColumn,
-                MofNCompleteColumn,
-                Progress,
-                TextColumn,
-                TimeElapsedColumn,
-                TimeRemainingColumn,
-            )
-
-            self.bar = Progress(
-                TextColumn("[bold]train"),
-                BarColumn(),
-                MofNCompleteColumn(),
-                TextColumn("loss {task.fields[loss]}"),
-                TimeElapsedColumn(),
-                TimeRemainingColumn(),
-            )
-            self.task = self.bar.add_task("train", total=total, completed=start, loss="-")
-
-    def __enter__(self) -> _Progress:
-        if self.bar is not None:
-            self.bar.start()
-        return self
-
-    def update(self, loss: float) -> None:
-        if self.bar is not None:
-            self.bar.update(self.task, advance=1, loss=f"{loss:.4f}")
-
-    def __exit__(self, *exc: object) -> None:
-        if self.bar is not None:
-            self.bar.stop()
+def _settings_meta(s: TrainSettings) -> dict:
+    """The settings as JSON-able plain data (tuples as lists)."""
+    return {
+        **asdict(s),
+        "brightness": list(s.brightness),
+        "sample_counts": list(s.sample_counts),
+    }
 
 
 def train(
@@ -181,15 +174,19 @@ def train(
 ) -> TrainResult:
     """Train (or resume training) a `family` model on sequence folders; write `output`.
 
-    With `resume`, the model, optimizer, step and RNG states come from that checkpoint
-    (its family / config win over `family` / `model_config`) and training continues up to
-    `settings.steps`. Returns the per-step losses of this call and validation metrics.
+    With `resume`, the model, optimizer, scheduler, step and RNG states come from that
+    checkpoint (its family / config win over `family` / `model_config`) and training continues
+    up to `settings.steps` (or `settings.stop_at`: a long schedule run in pieces). `progress`:
+    a rich bar where stderr is a terminal, else (and without it) a line per logging window with
+    the ETA. `command`: the command line recorded in the meta (default: this process's argv).
+    Returns the per-step losses of this call and validation metrics.
     """
     s = settings or TrainSettings()
     device = torch_device(s.device)
     if s.threads:
         torch.set_num_threads(int(s.threads))
     output = Path(output)
+    command = command if command is not None else shlex.join(sys.argv)
     rng = seed_everything(s.seed)
     train_state: dict | None = None
     meta_in: dict = {}
@@ -202,10 +199,19 @@ def train(
     else:
         model = build_model(family, model_config)
     model.to(device).train()
+    loss_fn = training_loss(s.loss, model)
+    schedule = schedule_settings(s.schedule, s.steps, s.warmup)
+    if train_state is not None:
+        check_resumable(train_state.get("schedule"), schedule, str(resume))
     features = sample_features_of(model.config()) if SAMPLES in model.inputs else None
-    sequences = load_sequences(data_dirs, model.inputs, features)
+    sequences = load_sequences(data_dirs, model.inputs, features, cache=s.cache)
     val_buffers = tuple(dict.fromkeys((*model.inputs, "color")))  # + the noisy input's PSNR
     val_sequences = load_sequences(val_dirs, val_buffers, features) if val_dirs else []
+    where = f"memory-mapped from {s.cache}" if s.cache else "in memory"
+    log(
+        f"data: {len(sequences)} sequence(s), "
+        f"{sum(q.nbytes for q in sequences) / 2**20:.0f} MiB {where}"
+    )
     sampler = ClipSampler(
         sequences,
         rng,
@@ -217,31 +223,42 @@ def train(
         brightness=s.brightness,
         sample_features=features or (),
         sample_counts=s.sample_counts,
+        rotations=s.rotations,
+        permute=s.permute,
+        exposure=s.exposure,
     )
     optimizer = torch.optim.Adam(model.parameters(), lr=s.lr)
+    scheduler = build_scheduler(optimizer, s.schedule, s.steps, s.warmup)
     step = 0
     history: list[list[float]] = list(meta_in.get("loss_history", []))
+    commands = list(meta_in.get("commands", [meta_in["command"]] if "command" in meta_in else []))
+    commands.append(command)
     if train_state is not None:
         optimizer.load_state_dict(train_state["optimizer"])
-        for group in optimizer.param_groups:
-            group["lr"] = s.lr
+        if scheduler is None:  # a constant rate: this run's --lr (it may change on resume)
+            for group in optimizer.param_groups:
+                group["lr"] = s.lr
+        else:
+            scheduler.load_state_dict(train_state["scheduler"])
         step = int(train_state["step"])
         restore_rng_state(train_state["rng"], rng)
+
+    def lr_now() -> float:
+        return float(optimizer.param_groups[0]["lr"])
 
     def checkpoint(validation: dict | None = None) -> None:
         meta = {
             "step": step,
             "loss_history": history,
             "loss_last": losses[-1] if losses else meta_in.get("loss_last"),
+            "lr_last": lr_now(),
             "data": [str(Path(d)) for d in data_dirs],
             "val": [str(Path(d)) for d in val_dirs],
             "seed": s.seed,
-            "settings": {
-                **asdict(s),
-                "brightness": list(s.brightness),
-                "sample_counts": list(s.sample_counts),
-            },
-            "command": command if command is not None else " ".join(sys.argv),
+            "settings": _settings_meta(s),
+            "command": command,
+            "argv": shlex.split(command),
+            "commands": commands,
             "torch": str(torch.__version__),
             "resumed_from": str(resume) if resume is not None else meta_in.get("resumed_from"),
         }
@@ -249,6 +266,8 @@ def train(
             meta["validation"] = validation
         train_blob = {
             "optimizer": _to_cpu(optimizer.state_dict()),
+            "scheduler": scheduler.state_dict() if scheduler is not None else None,
+            "schedule": schedule,
             "step": step,
             "rng": rng_state(rng),
         }
@@ -258,12 +277,17 @@ def train(
     window: list[float] = []
     start_step = step
     t0 = time.perf_counter()
-    with _Progress(progress, s.steps, step) as bar:
-        while step < s.steps:
-            batch = sampler.sample()
+    bar = progress and _stderr_is_terminal()
+    last = s.steps if s.stop_at is None else max(step, min(s.steps, int(s.stop_at)))
+    if s.workers:  # batch k depends on (seed, k) only: no sampler state to resume
+        batches = step_batches(sampler, s.seed, step, last, s.workers)
+    else:  # one stream in this process, saved in the checkpoint
+        batches = (sampler.sample() for _ in range(step, last))
+    with TrainProgress(last, step, bar=bar, log=log) as shown:
+        for batch in batches:
             buffers = {k: v.to(device, non_blocking=True) for k, v in batch.buffers.items()}
             outputs = unroll(model, buffers)
-            loss = model.loss(outputs, batch.reference.to(device), s.temporal_weight)
+            loss = loss_fn(outputs, batch.reference.to(device), s.temporal_weight)
             if not torch.isfinite(loss):
                 raise RuntimeError(
                     f"non-finite training loss at step {step + 1}; weights not updated "
@@ -271,18 +295,20 @@ def train(
                 )
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
+            lr = lr_now()
             optimizer.step()
+            if scheduler is not None:
+                scheduler.step()
             step += 1
             value = float(loss.detach())
             losses.append(value)
             window.append(value)
-            bar.update(value)
-            if step % max(1, s.log_every) == 0 or step == s.steps:
-                history.append([step, float(np.mean(window))])
+            shown.update(step, value, lr)
+            if step % max(1, s.log_every) == 0 or step == last:
+                history.append([step, float(np.mean(window)), lr])
                 window = []
-                if not progress:  # no bar (logs, CI): a line per logging window instead
-                    log(f"step {step}/{s.steps}: loss {history[-1][1]:.4f}")
-            if s.save_every and step % s.save_every == 0 and step < s.steps:
+                shown.window(step, history[-1][1], lr)
+            if s.save_every and step % s.save_every == 0 and step < last:
                 checkpoint()
     seconds = (time.perf_counter() - t0) / max(1, step - start_step)
     validation = evaluate(model, val_sequences) if val_sequences else None
@@ -294,3 +320,8 @@ def train(
     checkpoint(validation)
     model.eval()
     return TrainResult(output, step, losses, validation, seconds)
+
+
+def _stderr_is_terminal() -> bool:
+    """Whether a rich bar would show (rich draws on stderr here; a log or pipe gets lines)."""
+    return bool(getattr(sys.stderr, "isatty", None) and sys.stderr.isatty())

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from train_data import INPUTS, TINY, write_sequence
 from typer.testing import CliRunner
 
 from rtdenoise.cli.train import app
@@ -15,37 +16,6 @@ from rtdenoise.models.data import ClipSampler, load_sequence
 from rtdenoise.models.losses import sequence_loss, smape, temporal_smape
 from rtdenoise.models.registry import build_model
 from rtdenoise.models.train import TrainSettings, train, unroll
-from rtdenoise.runtime.sequences.exr import write_exr
-
-TINY = {"widths": [8, 12], "kernel_size": 5, "refine_width": 8}
-INPUTS = ("color", "albedo", "normal", "depth", "motion")
-
-
-def write_sequence(folder: Path, frames: int = 6, size: int = 32, seed: int = 0) -> Path:
-    """A faceted, textured wall panning 1 px per frame (previous = current + (1, 0)).
-
-    Shading follows the facet normals, so a denoiser that learns to use the normal
-    feature beats the blur an untrained one does; noise is 1-spp-like (exponential).
-    """
-    rng = np.random.default_rng(seed)
-    folder.mkdir(parents=True, exist_ok=True)
-    ys, xs = np.mgrid[0:size, 0:size].astype(np.float32)
-    light = np.array([0.6, -0.3, 0.74], np.float32)
-    for t in range(frames):
-        u = xs + t
-        tilt = ((np.floor(u / 3) + np.floor(ys / 5)) % 3 - 1.0) * 0.8
-        normal = np.stack([np.sin(tilt), np.zeros_like(tilt), np.cos(tilt)])
-        albedo = 0.3 + 0.5 * (np.floor(u / 8) % 2)
-        ref = albedo * (0.05 + 2.0 * np.maximum(0.0, np.tensordot(light, normal, 1)))
-        noisy = ref * rng.exponential(1.0, size=(3, size, size)).astype(np.float32)
-        ch = {c: noisy[i] for i, c in enumerate("RGB")}
-        ch.update({f"albedo.{c}": albedo for c in "RGB"})
-        ch.update({f"normal.{c}": normal[i] for i, c in enumerate("XYZ")})
-        ch["depth.Z"] = np.full_like(xs, 3.0)
-        ch["motion.X"], ch["motion.Y"] = np.ones_like(xs), np.zeros_like(xs)
-        write_exr(folder / f"frame_{t:04d}.exr", ch, half=False)
-        write_exr(folder / f"ref_{t:04d}.exr", {c: ref for c in "RGB"}, half=False)
-    return folder
 
 
 @pytest.fixture(scope="module")
@@ -162,6 +132,7 @@ def test_resume_equals_uninterrupted_run(seq_dir, tmp_path):
     for k, v in a["state_dict"].items():
         assert torch.equal(v, b["state_dict"][k]), k
     assert b["meta"]["step"] == 6 and b["meta"]["resumed_from"] == str(tmp_path / "half.pt")
+    assert len(b["meta"]["commands"]) == 2  # the first run's command line and the resume's
 
 
 def test_periodic_checkpoints(seq_dir, tmp_path, monkeypatch):
@@ -224,6 +195,45 @@ def test_cli_trains_validates_and_reports_errors(seq_dir, tmp_path):
     bad = runner.invoke(app, [*args[:3], "--config", "{not json"])
     assert bad.exit_code == 2 and "--config" in bad.output
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_cli_recipe_options_command_in_meta_and_eta_lines(seq_dir, tmp_path, monkeypatch):
+    from rtdenoise.cli.train import Exposure, Loss, Schedule
+    from rtdenoise.models.data import EXPOSURES
+    from rtdenoise.models.losses import LOSSES
+    from rtdenoise.models.schedule import SCHEDULES
+
+    assert [e.value for e in Loss] == list(LOSSES)
+    assert tuple(e.value for e in Schedule) == SCHEDULES
+    assert tuple(e.value for e in Exposure) == EXPOSURES
+    runner = CliRunner()
+    out = tmp_path / "recipe.pt"
+    args = [str(seq_dir), "-o", str(out), "--steps", "4", "--crop", "16", "--frames", "2",
+            "--batch", "1", "--threads", "1", "--loss", "l1-ms-ssim", "--schedule", "onecycle",
+            "--warmup", "0.25", "--rotations", "--permute-channels", "--exposure", "auto",
+            "--log-every", "2", "--cache", str(tmp_path / "cache"), "--config",
+            '{"widths": [8, 8], "kernel_size": 3, "refine_width": 8}']  # fmt: skip
+    monkeypatch.setattr("sys.argv", ["/some/bin/denoise-train", *args])
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    # not a terminal: plain progress lines with the ETA, one per --log-every steps
+    lines = [ln for ln in res.output.splitlines() if ln.startswith("step ")]
+    assert len(lines) == 2 and all("ETA" in ln and "lr" in ln for ln in lines), res.output
+    _, meta = load_checkpoint(out)
+    assert meta["argv"] == ["denoise-train", *args]
+    assert meta["command"].startswith("denoise-train ") and "--loss l1-ms-ssim" in meta["command"]
+    assert meta["commands"] == [meta["command"]]
+    st = meta["settings"]
+    assert (st["loss"], st["schedule"], st["warmup"]) == ("l1-ms-ssim", "onecycle", 0.25)
+    assert st["rotations"] and st["permute"] and st["exposure"] == "auto"
+    assert st["cache"] == str(tmp_path / "cache") and st["log_every"] == 2
+    assert [h[0] for h in meta["loss_history"]] == [2, 4]
+    help_text = runner.invoke(app, ["--help"], env={"COLUMNS": "200"}).output
+    for option in ("--loss", "--schedule", "--warmup", "--rotations", "--permute-channels",
+                   "--exposure", "--cache", "--stop-at", "--log-every"):  # fmt: skip
+        assert option in help_text
+    bad = runner.invoke(app, [*args[:3], "--loss", "l7"])
+    assert bad.exit_code == 2
 
 
 def test_non_finite_loss_stops_training(seq_dir, tmp_path, monkeypatch):

@@ -1,0 +1,142 @@
+"""Losses for training (models/losses.py, models/msssim.py, models/transfer.py): the transfer
+curve, auto-exposure, SSIM / MS-SSIM against their definitions, OIDN's L1 + MS-SSIM mix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from rtdenoise.models.losses import (
+    LOSSES,
+    l1_ms_ssim_loss,
+    sequence_loss,
+    training_loss,
+)
+from rtdenoise.models.msssim import MS_SSIM_WEIGHTS, ms_ssim, scales_for, ssim, window_for
+from rtdenoise.models.registry import build_model
+from rtdenoise.models.transfer import autoexposure, perceptual_transfer
+
+TINY = {"widths": [8, 12], "kernel_size": 5, "refine_width": 8}
+
+
+def test_transfer_curve_is_srgb_below_one_log_above_and_c1():
+    x = torch.tensor([0.0, 0.002, 0.0031308, 0.01, 0.18, 0.5, 1.0], dtype=torch.float64)
+    srgb = torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.pow(1 / 2.4) - 0.055)
+    torch.testing.assert_close(perceptual_transfer(x), srgb)
+    big = torch.tensor([2.0, 100.0, 65504.0], dtype=torch.float64)
+    torch.testing.assert_close(perceptual_transfer(big), 1 + 1.055 / 2.4 * torch.log(big))
+    # continuous at both joints; C1 at 1 (the standard's own toe joint has a 1.7 % slope step)
+    for joint, step in ((0.0031308, 0.02), (1.0, 1e-3)):
+        lo, hi = torch.tensor([joint - 1e-7, joint + 1e-7], dtype=torch.float64)
+        assert abs(float(perceptual_transfer(hi) - perceptual_transfer(lo))) < 1e-5
+        g = []
+        for v in (joint - 1e-6, joint + 1e-6):
+            t = torch.tensor(v, dtype=torch.float64, requires_grad=True)
+            perceptual_transfer(t).backward()
+            g.append(float(t.grad))
+        assert abs(g[0] - g[1]) / g[1] < step, (joint, g)
+    grid = torch.logspace(-6, 4.8, 500, dtype=torch.float64)
+    y = perceptual_transfer(grid)
+    assert bool((y[1:] > y[:-1]).all())
+    torch.testing.assert_close(perceptual_transfer(-grid), -y)
+    zero = torch.zeros((), requires_grad=True)
+    perceptual_transfer(zero).backward()
+    assert float(zero.grad) == pytest.approx(12.92)  # an output of 0 still gets a gradient
+
+
+def test_autoexposure_is_key_over_geometric_mean_of_blocks():
+    img = torch.full((1, 2, 3, 32, 32), 0.5)
+    img[..., :16, :16] = 2.0  # 4 blocks of 16 x 16: luminance 2, 0.5, 0.5, 0.5
+    gmean = float(np.exp(np.mean(np.log([2.0, 0.5, 0.5, 0.5]))))
+    assert float(autoexposure(img)[0]) == pytest.approx(0.18 / gmean, rel=1e-5)
+    # a 16-px block averages noise first: the geometric mean of pixels would differ
+    noisy = torch.zeros(1, 3, 16, 16)
+    noisy[..., ::2, ::2] = 4.0  # block mean 1.0
+    assert float(autoexposure(noisy)[0]) == pytest.approx(0.18, rel=1e-5)
+    # scale invariance, black clips, per-clip values, a crop smaller than a block
+    x = torch.rand(3, 2, 3, 20, 24) + 0.01
+    torch.testing.assert_close(autoexposure(7.0 * x), autoexposure(x) / 7.0)
+    assert float(autoexposure(torch.zeros(1, 3, 8, 8))[0]) == 1.0
+    assert autoexposure(torch.rand(2, 3, 5, 7)).shape == (2,)
+
+
+def _window_ssim(x: np.ndarray, y: np.ndarray) -> float:
+    """SSIM of two single-channel 11 x 11 images: one Gaussian window (Wang et al. 2004)."""
+    r = np.arange(11) - 5.0
+    g = np.exp(-(r**2) / (2 * 1.5**2))
+    w = np.outer(g, g) / np.outer(g, g).sum()
+    mx, my = (w * x).sum(), (w * y).sum()
+    vx, vy = (w * x * x).sum() - mx**2, (w * y * y).sum() - my**2
+    cov = (w * x * y).sum() - mx * my
+    c1, c2 = 0.01**2, 0.03**2
+    return ((2 * mx * my + c1) * (2 * cov + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
+
+
+def test_ssim_matches_its_definition_and_ms_ssim_its_product():
+    rng = np.random.default_rng(0)
+    a, b = rng.random((2, 1, 1, 11, 11))
+    got = float(ssim(torch.from_numpy(a), torch.from_numpy(b))[0])
+    assert got == pytest.approx(_window_ssim(a[0, 0], b[0, 0]), abs=1e-10)
+    # 32 px: 2 scales, weights 0.0448 and 0.2856 renormalised
+    x = torch.rand(2, 3, 32, 32, dtype=torch.float64)
+    y = (x + 0.2 * torch.randn_like(x)).clamp(0, 1)
+    from rtdenoise.models.msssim import _gaussian, _ssim_cs
+
+    k = _gaussian(11, 1.5, 3, x)
+    _, cs1 = _ssim_cs(x, y, k, 1.0)
+    s2, _ = _ssim_cs(
+        torch.nn.functional.avg_pool2d(x, 2), torch.nn.functional.avg_pool2d(y, 2), k, 1.0
+    )
+    w = torch.tensor(MS_SSIM_WEIGHTS[:2], dtype=torch.float64)
+    w = w / w.sum()
+    torch.testing.assert_close(ms_ssim(x, y), cs1 ** w[0] * s2 ** w[1])
+    torch.testing.assert_close(ms_ssim(x, x), torch.ones(2, dtype=torch.float64))
+    assert float(ms_ssim(x, y).mean()) < float(ms_ssim(x, (x + 0.05 * (y - x))).mean()) < 1
+
+
+def test_scales_and_windows_for_small_crops():
+    assert [scales_for(s) for s in (16, 21, 22, 32, 64, 128, 176, 256)] == [1, 1, 2, 2, 3, 4, 5, 5]
+    assert [window_for(s) for s in (3, 4, 9, 10, 11, 64)] == [3, 3, 9, 9, 11, 11]
+    with pytest.raises(ValueError, match="at least 3"):
+        ms_ssim(torch.rand(1, 3, 2, 8), torch.rand(1, 3, 2, 8))
+    for side in (8, 16, 24):  # small crops: finite values and gradients
+        x = torch.rand(2, 3, side, side, requires_grad=True)
+        v = ms_ssim(x, torch.rand(2, 3, side, side)).mean()
+        v.backward()
+        assert torch.isfinite(v) and bool(torch.isfinite(x.grad).all())
+
+
+def test_l1_ms_ssim_loss_definition_and_exposure_invariance():
+    g = torch.Generator().manual_seed(1)
+    ref = torch.rand(2, 3, 3, 24, 24, generator=g) * 4.0
+    out = (ref * (1 + 0.3 * torch.randn(ref.shape, generator=g))).clamp_min(0)
+    assert float(l1_ms_ssim_loss(ref, ref, 0.25)) == pytest.approx(0.0, abs=1e-6)
+    # by hand: exposure from the reference, the curve, 0.16 L1 + 0.84 (1 - MS-SSIM)
+    e = autoexposure(ref).view(-1, 1, 1, 1, 1)
+    to, tr = perceptual_transfer(out * e), perceptual_transfer(ref * e)
+    ms = ms_ssim(to.reshape(-1, 3, 24, 24), tr.reshape(-1, 3, 24, 24)).mean()
+    expected = 0.16 * (to - tr).abs().mean() + 0.84 * (1 - ms)
+    torch.testing.assert_close(l1_ms_ssim_loss(out, ref, 0.0), expected)
+    d = ((to[:, 1:] - to[:, :-1]) - (tr[:, 1:] - tr[:, :-1])).abs().mean()
+    torch.testing.assert_close(l1_ms_ssim_loss(out, ref, 0.5), expected + 0.5 * d)
+    # a 50x brighter render of the same clip costs the same (exposure normalisation)
+    torch.testing.assert_close(
+        l1_ms_ssim_loss(50 * out, 50 * ref, 0.25), l1_ms_ssim_loss(out, ref, 0.25)
+    )
+    assert l1_ms_ssim_loss(out[:, 0], ref[:, 0]).shape == ()  # single frames (N, 3, H, W)
+
+
+def test_training_loss_names():
+    model = build_model("afn", TINY)
+    assert training_loss("paper", model) == model.loss
+    assert training_loss("smape", model) is sequence_loss
+    assert training_loss("l1-ms-ssim", model) is l1_ms_ssim_loss
+    assert set(LOSSES) == {"paper", "smape", "l1-ms-ssim"}
+    with pytest.raises(ValueError, match="unknown loss"):
+        training_loss("l2", model)
+    # a family's regulariser (a public hook) is kept when the loss is replaced
+    model.regulariser = lambda: torch.tensor(0.5)
+    o, r = torch.rand(1, 2, 3, 16, 16), torch.rand(1, 2, 3, 16, 16)
+    fn = training_loss("smape", model)
+    torch.testing.assert_close(fn(o, r, 0.25), sequence_loss(o, r, 0.25) + 0.5)
