@@ -218,3 +218,23 @@ def test_loss_is_eq_9_with_the_bandwidth_regulariser():
     assert m._bandwidths == []  # consumed
     loss.backward()
     assert m.unet.up[-1][-1].weight.grad is not None
+
+
+@pytest.mark.parametrize("name", ["smape", "l1-ms-ssim"])
+def test_another_training_loss_keeps_the_bandwidth_regulariser(name):
+    """`denoise-train --loss` other than the paper's still adds Isik21 eq. (13)."""
+    from rtdenoise.models.losses import LOSSES, training_loss
+
+    torch.manual_seed(3)
+    m = build_model("affinity", Affinity.example_config).train()
+    state = m.initial_state(N, H, W)
+    outs = []
+    for t in range(2):
+        o, state = m(_buffers(t), state, torch.tensor(1.0 if t == 0 else 0.0))
+        outs.append(o)
+    outs = torch.stack(outs, dim=1)
+    refs = outs.detach() * 1.1 + 0.05
+    reg = 1e-5 * torch.stack(m._bandwidths).mean()
+    plain = LOSSES[name](outs, refs, 0.25)
+    torch.testing.assert_close(training_loss(name, m)(outs, refs, 0.25), plain + reg)
+    assert m._bandwidths == [] and float(reg) > 0

@@ -415,10 +415,17 @@ class Affinity(DenoiserModel):
             d_out = outputs[:, 1:] - outputs[:, :-1]
             d_ref = reference[:, 1:] - reference[:, :-1]
             loss = loss + temporal_weight * smape_l1(d_out, d_ref, eps)
-        if self._bandwidths:
-            loss = loss + self.cfg.regulariser_weight * torch.stack(self._bandwidths).mean()
-            self._bandwidths = []
-        return loss
+        regulariser = self.regulariser()
+        return loss if regulariser is None else loss + regulariser
+
+    def regulariser(self) -> torch.Tensor | None:
+        """regulariser_weight x (sum_k E a_k^2 + E b^2) (Isik21 eq. (13)) over the frames
+        unrolled since the last call (None outside training); what any `--loss` adds."""
+        if not self._bandwidths:
+            return None
+        value = self.cfg.regulariser_weight * torch.stack(self._bandwidths).mean()
+        self._bandwidths = []
+        return value
 
 
 def smape_l1(a: torch.Tensor, b: torch.Tensor, eps: float) -> torch.Tensor:
