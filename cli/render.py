@@ -226,7 +226,8 @@ def render(
     console.print(
         f"rendered {done} sequence(s) of {frames} frame(s) at {width}x{height}, "
         f"{spp_ref} spp references, variant {used}, in {time.perf_counter() - start:.1f} s "
-        f"-> {out_dir}"
+        f"-> {out_dir}",
+        soft_wrap=True,
     )
 
 
