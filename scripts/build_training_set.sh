@@ -5,6 +5,9 @@
 #
 #   nohup setsid scripts/build_training_set.sh > /work/data/train_v2/build.log 2>&1 &
 #
+# PYTHON may be a separate, non-editable install (pip install --no-deps .), so that edits to
+# the source tree do not change a render that is running or resumed later (docs/data.md).
+#
 # Settings (environment): DATA (/work/data), PYTHON (python), VARIANT (llvm_ad_rgb; falls back
 # to scalar_rgb without LLVM 19), THREADS (1), TRAIN_N (1000 clips; raise it to grow the set:
 # the first TRAIN_N clips stay the same), SHARD (e.g. 0/2 to run one of two processes at
@@ -16,7 +19,6 @@
 # Validation: 128x128, 12 frames, 4096-spp references, base seed 20000: indices 0-3 the
 # held-out kinds (corridor: an interior style; water: a material class), 4-7 the others.
 set -euo pipefail
-cd "$(dirname "$0")/.."
 DATA=${DATA:-/work/data}
 PYTHON=${PYTHON:-python}
 VARIANT=${VARIANT:-llvm_ad_rgb}
@@ -35,6 +37,7 @@ TRAIN=(--seed "$TRAIN_SEED" --frames 8 --size "$SIZE" --spp-ref "$TRAIN_SPP"
     --exclude-kinds "$HELD_OUT")
 VAL=(--seed "$VAL_SEED" --frames 12 --size "$SIZE" --spp-ref "$VAL_SPP")
 mkdir -p "$DATA/train_v2" "$DATA/val_v2"
+cd "$DATA"  # not a source tree: `python -m` puts the working folder first on sys.path
 
 # The two sets must not share a scene seed (sequence i of a job has scene seed
 # derive_seed(base, i)).
