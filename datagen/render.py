@@ -42,7 +42,7 @@ import numpy as np
 from ..runtime.atomic import write_text_atomic
 from ..runtime.exr import read_exr_header, write_exr
 from ..runtime.samples import DEFAULT_SAMPLE_FEATURES, sample_channels
-from .camera import Camera, orbit_path
+from .camera import Camera, orbit_path, project
 from .features import BACKGROUND_ALBEDO, BACKGROUND_DEPTH, canonical_features, override_albedo
 from .kinds import generate_scene
 from .paths import cameras_from_spec
@@ -70,6 +70,25 @@ class RenderConfig:
 
 
 PARTIAL = "partial.json"
+MAX_REDRAWS = 8  # shots drawn again (from derived seeds) when one is unusable
+NEAR_DEPTH = 0.2  # world units: a view mostly nearer than this is inside or against a shape
+NEAR_FRACTION = 0.3
+BLACK_LUMINANCE = 1e-5  # mean pilot radiance below this: frame 0 sees no light
+
+
+def shot_problem(mi, mi_scene, aov, cams: list[Camera], pilot: np.ndarray) -> str | None:
+    """Why a drawn shot is unusable (None: usable): frame 0 black, or on some frame the
+    camera inside or against a shape (a random camera path can enter a prop or a wall)."""
+    lum = float(np.mean(pilot))
+    if not lum > BLACK_LUMINANCE:
+        return f"frame 0 is black (mean pilot radiance {lum:.2g})"
+    for t, cam in enumerate(cams):
+        pp = _aovs(mi, mi_scene, aov, cam)["pp"].astype(np.float64)
+        hit = np.linalg.norm(pp, axis=-1) > 0
+        near = float((hit & (project(pp, cam)[2] < NEAR_DEPTH)).mean())
+        if near > NEAR_FRACTION:
+            return f"frame {t}: {near:.0%} of the view nearer than {NEAR_DEPTH}"
+    return None
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
@@ -255,15 +274,34 @@ def render_sequence(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
 
-    desc = scene if scene is not None else generate_scene(scene_seed, cfg.kinds, cfg.exclude_kinds)
-    rng = np.random.default_rng(derive_seed(scene_seed, 1))
-    cams = orbit_path(rng, cfg.frames, cfg.width, cfg.height)  # legacy; draws the rng as before
-    cut_list: list[int] = []
-    if "camera" in desc:
-        cams, cut_list = cameras_from_spec(desc["camera"], cfg.frames, cfg.width, cfg.height)
-    if cameras is not None:
-        cams, cut_list = list(cameras), sorted(cuts or [])
-    target = float(rng.uniform(0.25, 0.6))
+    path = mi.load_dict({"type": "path", "max_depth": cfg.max_depth})
+    aov = mi.load_dict({"type": "aov", "aovs": _AOVS})
+    pilot_seed = derive_seed(scene_seed, 2)
+    redraws: list[dict] = []
+    draw_seed = scene_seed
+    for attempt in range(MAX_REDRAWS + 1):
+        if scene is not None:
+            desc = scene
+        else:
+            desc = generate_scene(draw_seed, cfg.kinds, cfg.exclude_kinds)
+        rng = np.random.default_rng(derive_seed(draw_seed, 1))
+        cams = orbit_path(rng, cfg.frames, cfg.width, cfg.height)  # legacy; draws rng as before
+        cut_list: list[int] = []
+        if "camera" in desc:
+            cams, cut_list = cameras_from_spec(desc["camera"], cfg.frames, cfg.width, cfg.height)
+        if cameras is not None:
+            cams, cut_list = list(cameras), sorted(cuts or [])
+        target = float(rng.uniform(0.25, 0.6))
+        mi_scene = build_scene(desc)
+        pilot, _ = _radiance(mi, mi_scene, path, cams[0], cfg.pilot_spp, pilot_seed, "independent")
+        pilot = np.nan_to_num(pilot, nan=0.0, posinf=0.0, neginf=0.0)
+        why = None if scene is not None else shot_problem(mi, mi_scene, aov, cams, pilot)
+        if why is None:
+            break
+        redraws.append({"scene_seed": int(draw_seed), "kind": desc.get("kind"), "why": why})
+        draw_seed = derive_seed(scene_seed, 3, attempt)
+    else:
+        raise RuntimeError(f"{out}: no usable shot in {MAX_REDRAWS + 1} draws: {redraws}")
     job = json.loads(json.dumps({
         "config": asdict(cfg), "scene_seed": int(scene_seed), "variant": variant,
         "mitsuba": mi.__version__, "scene": desc, "cuts": cut_list,
@@ -272,11 +310,8 @@ def render_sequence(
     keep, exposure = _resume_point(out, job, len(cams))
     _clear(out, keep)
 
-    mi_scene = build_scene(desc)
     id_scene = build_scene(desc, id_pass=True)
     alb_table = albedo_table(mi, desc)
-    path = mi.load_dict({"type": "path", "max_depth": cfg.max_depth})
-    aov = mi.load_dict({"type": "aov", "aovs": _AOVS})
     aov_id = mi.load_dict({"type": "aov", "aovs": "id:albedo"})
     aov_path = mi.load_dict(
         {"type": "aov", "aovs": _AOVS, "integrator": {"type": "path", "max_depth": cfg.max_depth}}
@@ -284,10 +319,7 @@ def render_sequence(
     spp = max(1, cfg.samples)
 
     if exposure is None:
-        pilot, _ = _radiance(
-            mi, mi_scene, path, cams[0], cfg.pilot_spp, derive_seed(scene_seed, 2), "independent"
-        )
-        exposure = auto_exposure(np.nan_to_num(pilot, nan=0.0, posinf=0.0, neginf=0.0), target)
+        exposure = auto_exposure(pilot, target)
         write_json_atomic(out / PARTIAL, {"job": job, "exposure": exposure})
     limit = HALF_MAX if cfg.half else None
     replaced = 0
@@ -364,6 +396,7 @@ def render_sequence(
         "exposure": exposure,
         "nonfinite_replaced": replaced,
         "resumed_frames": sorted(keep),
+        "redraws": redraws,
         "seeds": seeds,
         "cameras": [
             {

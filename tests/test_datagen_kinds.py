@@ -350,3 +350,32 @@ def test_cli_kinds_shards_and_list(tmp_path):
     assert r.exit_code == 2 and "castle" in r.output
     r = runner.invoke(app, [*args.split(), "--shard", "2/2"])
     assert r.exit_code == 2 and "--shard" in r.output
+
+
+@needs_mitsuba
+def test_unusable_shots_are_drawn_again(tmp_path):
+    import mitsuba as mi
+
+    from rtdenoise.datagen.camera import Camera
+    from rtdenoise.datagen.render import _AOVS, RenderConfig, render_sequence, shot_problem
+    from rtdenoise.datagen.scene import build_scene
+    from rtdenoise.datagen.seeds import derive_seed
+
+    _select()
+    # sequence 18 of the v2 training job: its first draw puts the camera inside a prop
+    cfg = RenderConfig(16, 16, 2, spp_ref=4, exclude_kinds=("corridor", "water"))
+    meta = render_sequence(tmp_path, derive_seed(10000, 18), cfg, variant="scalar_rgb")
+    assert meta["redraws"] and "black" in meta["redraws"][0]["why"]
+    assert meta["scene"]["seed"] != meta["scene_seed"] and meta["exposure"] < 1e3
+    assert meta == json.loads((tmp_path / "meta.json").read_text())
+    grey = {"type": "diffuse", "reflectance": {"kind": "rgb", "value": [0.5] * 3}}
+    ball = {"shape": "sphere", "center": [0.0, 0.0, 0.0], "radius": 0.15, "material": grey}
+    env = {"type": "constant", "radiance": [1.0] * 3}
+    scene = build_scene({"objects": [ball], "lights": [], "environment": env})
+    aov = mi.load_dict({"type": "aov", "aovs": _AOVS})
+    inside = Camera((0.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0), 50.0, 16, 16)
+    outside = Camera((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 50.0, 16, 16)
+    lit = np.ones((16, 16, 3))
+    assert "nearer than" in shot_problem(mi, scene, aov, [outside, inside], lit)
+    assert shot_problem(mi, scene, aov, [outside], lit) is None
+    assert "black" in shot_problem(mi, scene, aov, [outside], 0 * lit)
