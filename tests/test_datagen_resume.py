@@ -108,3 +108,21 @@ def test_the_cli_finishes_a_killed_job(tmp_path):
     meta = json.loads((tmp_path / "seq_001" / "meta.json").read_text())
     assert meta["resumed_frames"] == [0] and meta["job"] == {"base_seed": 9, "index": 1}
     assert json.loads((tmp_path / "seq_000" / "meta.json").read_text())["resumed_frames"] == []
+
+
+def test_two_processes_share_one_folder_without_clashing(tmp_path):
+    import re
+    import subprocess
+    import sys
+
+    args = [sys.executable, "-m", "rtdenoise.cli.render", str(tmp_path), "-n", "6", "-f", "2",
+            "--size", "16x16", "--spp-ref", "4", "--seed", "3", "--kinds", "texture"]  # fmt: skip
+    procs = [subprocess.Popen(args, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    logs = [p.communicate(timeout=300)[1] for p in procs]
+    assert all(p.returncode == 0 for p in procs), logs
+    rendered = [int(re.search(r"rendered (\d+) sequence", log).group(1)) for log in logs]
+    assert sum(rendered) == 6, logs  # each sequence rendered by exactly one of them
+    for i in range(6):
+        seq = tmp_path / f"seq_{i:03d}"
+        meta = json.loads((seq / "meta.json").read_text())
+        assert meta["resumed_frames"] == [] and not (seq / ".lock").exists()
