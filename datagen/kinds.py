@@ -38,7 +38,7 @@ from .textures import HF_PATTERNS, PATTERNS
 class Kind:
     name: str
     weight: float
-    generate: Callable[[np.random.Generator], dict]
+    generate: Callable[[int], dict]  # seed -> description (without `seed` and `kind`)
     summary: str
 
 
@@ -231,12 +231,23 @@ def _room_anchor(size, margin: float = 0.4, max_eye: float = 1.9) -> dict:
 # ------------------------------------------------------------------------ generators
 
 
-def gen_legacy(rng: np.random.Generator) -> dict:
-    raise AssertionError("legacy is random_scene(seed); generate_scene calls it directly")
+def gen_legacy(seed: int) -> dict:
+    """The original generator, unchanged (its orbit comes from render.py)."""
+    return random_scene(seed)
 
 
-def gen_objects(rng: np.random.Generator) -> dict:
-    raise AssertionError("objects is random_scene(seed) + a path; generate_scene adds it")
+def gen_objects(seed: int) -> dict:
+    """The original layout with a camera path from a stream of its own (the layout's draws
+    stay those of `random_scene`)."""
+    path_rng = np.random.default_rng(derive_seed(seed, 8))
+    anchor = {"mode": "orbit", "target": [0.0, 0.5, 0.0], "target_jitter": 0.15,
+              "radius": [2.8, 4.4], "height": [0.9, 2.4]}  # fmt: skip
+    return {**random_scene(seed), "camera": draw_path(path_rng, anchor)}
+
+
+def _seeded(gen: Callable[[np.random.Generator], dict]) -> Callable[[int], dict]:
+    """A generator of `np.random.default_rng(seed)` as one of the seed."""
+    return lambda seed: gen(np.random.default_rng(seed))
 
 
 def gen_room(rng: np.random.Generator) -> dict:
@@ -582,14 +593,19 @@ KINDS: dict[str, Kind] = {
     for k in (
         Kind("legacy", 0.0, gen_legacy, "the original generator, one orbit (only when named)"),
         Kind("objects", 1.5, gen_objects, "objects on a ground plane, every camera path"),
-        Kind("room", 2.0, gen_room, "closed room lit through 1-2 windows"),
-        Kind("box_hidden", 1.5, gen_box_hidden, "closed box lit by hidden emitters on shelves"),
-        Kind("corridor", 1.0, gen_corridor, "long corridor, openings along one side"),
-        Kind("glass", 1.5, gen_glass, "dielectrics under a small bright light (caustics)"),
-        Kind("water", 1.0, gen_water, "pool with a wavy water surface"),
-        Kind("thin", 1.5, gen_thin, "grilles, foliage, wires"),
-        Kind("texture", 1.0, gen_texture, "high-frequency textures (text, fine patterns)"),
-        Kind("lights", 1.0, gen_lights, "small bright emitters and panels seen directly"),
+        Kind("room", 2.0, _seeded(gen_room), "closed room lit through 1-2 windows"),
+        Kind(
+            "box_hidden",
+            1.5,
+            _seeded(gen_box_hidden),
+            "closed box lit by hidden emitters on shelves",
+        ),
+        Kind("corridor", 1.0, _seeded(gen_corridor), "long corridor, openings along one side"),
+        Kind("glass", 1.5, _seeded(gen_glass), "dielectrics under a small bright light (caustics)"),
+        Kind("water", 1.0, _seeded(gen_water), "pool with a wavy water surface"),
+        Kind("thin", 1.5, _seeded(gen_thin), "grilles, foliage, wires"),
+        Kind("texture", 1.0, _seeded(gen_texture), "high-frequency textures (text, fine patterns)"),
+        Kind("lights", 1.0, _seeded(gen_lights), "small bright emitters and panels seen directly"),
     )
 }
 
@@ -629,16 +645,7 @@ def generate_scene(
 ) -> dict:
     """A scene description of a kind drawn from `seed` (see the module docstring)."""
     kind = choose_kind(seed, allowed_kinds(kinds, exclude))
-    if kind == "legacy":
-        return {**random_scene(seed), "kind": "legacy"}
-    if kind == "objects":
-        desc = random_scene(seed)
-        path_rng = np.random.default_rng(derive_seed(seed, 8))
-        anchor = {"mode": "orbit", "target": [0.0, 0.5, 0.0], "target_jitter": 0.15,
-                  "radius": [2.8, 4.4], "height": [0.9, 2.4]}  # fmt: skip
-        return {**desc, "kind": kind, "camera": draw_path(path_rng, anchor)}
-    desc = KINDS[kind].generate(np.random.default_rng(seed))
-    return {"seed": int(seed), "kind": kind, **desc}
+    return {"seed": int(seed), "kind": kind, **KINDS[kind].generate(seed)}
 
 
 def describe_kinds() -> str:
