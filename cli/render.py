@@ -42,7 +42,8 @@ by hidden lights, glass, water, thin geometry, fine textures, lights in view,
 objects), drawn from its seed with the kinds' weights among --kinds minus
 --exclude-kinds, and one camera path (still, pan, dolly, orbit, fast) or two
 shots with a cut between them: meta.json lists the cut frames (`cuts`, and
-`reset` per camera); motion is 0 there, as on frame 0.
+`reset` per camera); motion is 0 there, as on frame 0. A shot whose frame 0 is
+black or whose camera enters a shape is drawn again (meta.json `redraws`).
 
 \b
 Each folder holds, for frame NNNN (0-based):
