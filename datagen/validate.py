@@ -123,8 +123,8 @@ def warp_report(seq_dir: str | os.PathLike) -> list[FrameWarp]:
             out.append(
                 FrameWarp(
                     frame=t,
-                    psnr_warped=psnr(warped[..., :3], ref, valid),
-                    psnr_static=psnr(prev_ref, ref, valid),
+                    psnr_warped=psnr(warped[..., :3], ref, valid) if valid.any() else np.nan,
+                    psnr_static=psnr(prev_ref, ref, valid) if valid.any() else np.nan,
                     valid_fraction=float(valid.mean()),
                 )
             )
@@ -133,5 +133,7 @@ def warp_report(seq_dir: str | os.PathLike) -> list[FrameWarp]:
 
 
 def warp_gain_db(seq_dir: str | os.PathLike) -> float:
-    """Mean PSNR gain (dB) of motion-warped over unwarped previous references."""
-    return float(np.mean([r.gain_db for r in warp_report(seq_dir)]))
+    """Mean PSNR gain (dB) of motion-warped over unwarped previous references, over the frames
+    with valid pixels (NaN when none has: e.g. a fast pan where nothing stays in view)."""
+    gains = [r.gain_db for r in warp_report(seq_dir) if r.valid_fraction > 0]
+    return float(np.mean(gains)) if gains else float("nan")

@@ -58,6 +58,10 @@ def main() -> None:
             bad.append((seq, why))
         elif len(gains) < args.warp:
             gains.append(warp_gain_db(seq))
+            if not np.isfinite(gains[-1]):  # no frame with valid pixels: nothing to score
+                gains.pop()
+            elif gains[-1] < -1.0:  # a still camera scores 0: below it the warp is wrong
+                bad.append((seq, f"motion vectors warp worse than none ({gains[-1]:.1f} dB)"))
     print(f"{args.folder}: {len(complete)} complete, {len(partial)} in progress {partial}")
     print("kinds: " + ", ".join(f"{k} {n}" for k, n in kinds.most_common()))
     print(f"with a cut: {cuts}; shot drawn again: {redraws}")
