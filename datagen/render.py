@@ -44,7 +44,7 @@ from ..runtime.exr import read_exr_header, write_exr
 from ..runtime.samples import DEFAULT_SAMPLE_FEATURES, sample_channels
 from .camera import Camera, orbit_path, project
 from .features import BACKGROUND_ALBEDO, BACKGROUND_DEPTH, canonical_features, override_albedo
-from .kinds import generate_scene
+from .kinds import KINDS, generate_scene
 from .paths import cameras_from_spec
 from .scene import DIELECTRICS, ID_SCALE, build_scene, conductor_f0, shape_materials
 from .seeds import derive_seed
@@ -70,10 +70,18 @@ class RenderConfig:
 
 
 PARTIAL = "partial.json"
+REF_SPP_CAP = 4096  # a kind's ref_spp_scale never raises the reference count above this
 MAX_REDRAWS = 8  # shots drawn again (from derived seeds) when one is unusable
 NEAR_DEPTH = 0.2  # world units: a view mostly nearer than this is inside or against a shape
 NEAR_FRACTION = 0.3
 BLACK_LUMINANCE = 1e-5  # mean pilot radiance below this: frame 0 sees no light
+
+
+def reference_spp(spp_ref: int, kind: str | None) -> int:
+    """The reference sample count of a sequence: `spp_ref` times its kind's `ref_spp_scale`
+    (kinds whose references converge slowly), never above max(spp_ref, REF_SPP_CAP)."""
+    scale = KINDS[kind].ref_spp_scale if kind in KINDS else 1
+    return min(spp_ref * scale, max(spp_ref, REF_SPP_CAP))
 
 
 def shot_problem(mi, mi_scene, aov, cams: list[Camera], pilot: np.ndarray) -> str | None:
@@ -305,6 +313,7 @@ def render_sequence(
     job = json.loads(json.dumps({
         "config": asdict(cfg), "scene_seed": int(scene_seed), "variant": variant,
         "mitsuba": mi.__version__, "scene": desc, "cuts": cut_list,
+        "spp_ref": reference_spp(cfg.spp_ref, desc.get("kind")),
         "cameras": [c.to_json() for c in cams],
     }))  # fmt: skip
     keep, exposure = _resume_point(out, job, len(cams))
@@ -324,7 +333,7 @@ def render_sequence(
     limit = HALF_MAX if cfg.half else None
     replaced = 0
     seeds = []
-    spp_ref = cfg.spp_ref
+    spp_ref = requested_ref = reference_spp(cfg.spp_ref, desc.get("kind"))
     for t, cam in enumerate(cams):
         s_a, s_b, s_ref = (derive_seed(scene_seed, 100 + t, k) for k in range(3))
         seeds.append({"color": s_a, "colorB": s_b, "ref": s_ref})
@@ -346,7 +355,7 @@ def render_sequence(
         else:
             imgs = [_radiance(mi, mi_scene, path, cam, 1, s_a, "independent")[0]]
         imgs.append(_radiance(mi, mi_scene, path, cam, spp, s_b, "independent")[0])
-        ref_img, spp_ref = _radiance(mi, mi_scene, path, cam, cfg.spp_ref, s_ref, "multijitter")
+        ref_img, spp_ref = _radiance(mi, mi_scene, path, cam, requested_ref, s_ref, "multijitter")
         imgs.append(ref_img)
         clean = []
         for img in imgs:
@@ -368,8 +377,8 @@ def render_sequence(
         write_exr(out / f"ref_{t:04d}.exr", _rgb("", ref), half=cfg.half)
         if on_frame is not None:
             on_frame(t)
-    if keep and spp_ref == cfg.spp_ref:  # every frame kept: the sampler's count, as rendered
-        spp_ref = _multijitter_count(mi, cfg.spp_ref)
+    if keep and spp_ref == requested_ref:  # every frame kept: the sampler's count, as rendered
+        spp_ref = _multijitter_count(mi, requested_ref)
     if replaced:
         warnings.warn(
             f"{out}: replaced {replaced} NaN/Inf radiance values with 0", RuntimeWarning, 2
