@@ -96,6 +96,15 @@ def test_kinds_hold_what_they_promise():
     assert patterns & {"text", "fine_stripes", "fine_checker", "fine_noise"}
 
 
+def test_reference_spp_per_kind():
+    from rtdenoise.datagen.render import reference_spp
+
+    assert reference_spp(256, "room") == 256 and reference_spp(256, None) == 256
+    assert reference_spp(256, "box_hidden") == 1024 == reference_spp(256, "corridor")
+    assert reference_spp(4096, "box_hidden") == 4096  # the validation set's count stays
+    assert reference_spp(2048, "corridor") == 4096 and reference_spp(8192, "corridor") == 8192
+
+
 # ----------------------------------------------------------------- camera paths
 
 
