@@ -62,7 +62,7 @@ if [ -n "$SHARD" ]; then shard=(--shard "$SHARD"); fi
 
 # 1. a first slice of the training set, so that training can start
 render "$DATA/train_v2" "${TRAIN[@]}" -n "$FIRST_N" "${shard[@]}"
-# 2. the validation set (small: about 10 minutes a sequence on one core)
+# 2. the validation set (small: 10-30 minutes a sequence on one core)
 if [ -z "$SHARD" ] || [ "${SHARD%%/*}" = 0 ]; then
     render "$DATA/val_v2" "${VAL[@]}" -n "$VAL_HALF" --start-index 0 --kinds "$HELD_OUT"
     render "$DATA/val_v2" "${VAL[@]}" -n "$VAL_HALF" --start-index "$VAL_HALF" \
