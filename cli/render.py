@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -18,7 +19,9 @@ from rich.progress import (
 )
 
 from ..datagen.cluster import render_index, sequence_name, set_render_threads
+from ..datagen.kinds import allowed_kinds, describe_kinds
 from ..datagen.render import RenderConfig
+from ..datagen.shards import parse_shard, release, shard_indices, try_lock
 from ..datagen.variant import SUPPORTED_VARIANTS, select_variant
 from .cluster import (
     DEFAULT_RETRIES,
@@ -30,8 +33,17 @@ from .cluster import (
 )
 from .common import VersionOption, one_line_warnings, parse_size, user_errors
 
-HELP = """Render N random animated scenes (camera orbit, Mitsuba 3 path tracer) into
-OUT_DIR/seq_XXX/, one folder per sequence, XXX = sequence index.
+HELP = """Render N random animated scenes (Mitsuba 3 path tracer) into OUT_DIR/seq_XXX/,
+one folder per sequence, XXX = sequence index.
+
+\b
+Each sequence is one scene kind (--list-kinds: rooms, corridors, closed boxes lit
+by hidden lights, glass, water, thin geometry, fine textures, lights in view,
+objects), drawn from its seed with the kinds' weights among --kinds minus
+--exclude-kinds, and one camera path (still, pan, dolly, orbit, fast) or two
+shots with a cut between them: meta.json lists the cut frames (`cuts`, and
+`reset` per camera); motion is 0 there, as on frame 0. A shot whose frame 0 is
+black or whose camera enters a shape is drawn again (meta.json `redraws`).
 
 \b
 Each folder holds, for frame NNNN (0-based):
@@ -43,13 +55,18 @@ Each folder holds, for frame NNNN (0-based):
                   sample<i>.normal.X/Y/Z, sample<i>.depth.Z for i < S (S
                   independent 1-spp samples); R,G,B is then their mean
   ref_NNNN.exr    R,G,B reference with --spp-ref samples per pixel
-  meta.json       seeds, cameras, scene, conventions (written last: a folder
-                  without it is incomplete and is rendered again)
+  meta.json       seeds, cameras, cuts, scene, conventions (written last: a
+                  folder without it is incomplete)
+  partial.json    while it renders: a killed job resumes from it, keeping
+                  the whole frames and rendering the rest with the same seeds
 
 Sequence i uses a scene seed derived from (--seed, i), so a job can be split:
 e.g. `--sequences 12 --start-index 0` and `--sequences 12 --start-index 12`
-give the same 24 sequences as one run. Complete folders are skipped unless
---overwrite. Needs the data extra (mitsuba).
+give the same 24 sequences as one run, and so do N processes started at once
+with `--shard 0/N` ... `--shard N-1/N` (shard I takes the indices i with
+i % N == I). Complete folders are skipped unless --overwrite; a half-written
+one is finished. A lock file (seq_XXX/.lock) keeps processes whose ranges
+overlap off each other's sequences. Needs the data extra (mitsuba).
 
 With --cluster each sequence is one Ray task (the cluster extra; docs/cluster.md),
 seeded as locally, so the data set is the same either way; OUT_DIR must be on a
@@ -64,6 +81,18 @@ console = Console(stderr=True)
 def _warn(message: str) -> None:
     """A yellow `warning: ...` line; the message is not read as markup (`[data]` stays)."""
     console.print(f"warning: {message}", style="yellow", markup=False, highlight=False)
+
+
+def _kind_list(text: str | None) -> tuple[str, ...] | None:
+    if text is None:
+        return None
+    return tuple(k.strip() for k in text.split(",") if k.strip())
+
+
+def _list_kinds(value: bool) -> None:
+    if value:
+        print(describe_kinds())
+        raise typer.Exit()
 
 
 def _check_range(name: str, value: int, lo: int, hi: int) -> None:
@@ -112,11 +141,50 @@ def render(
     cluster: ClusterOption = False,
     cluster_address: ClusterAddressOption = None,
     retries: RetriesOption = DEFAULT_RETRIES,
+    kinds: Annotated[
+        str | None,
+        typer.Option(
+            "--kinds",
+            help="Comma-separated scene kinds to draw from (default: every kind of weight > 0; "
+            "see --list-kinds). A seed's kind depends on this set.",
+        ),
+    ] = None,
+    exclude_kinds: Annotated[
+        str | None,
+        typer.Option(
+            "--exclude-kinds",
+            help="Comma-separated scene kinds never drawn (e.g. the ones held out for validation).",
+        ),
+    ] = None,
+    shard: Annotated[
+        str | None,
+        typer.Option(
+            "--shard",
+            help="I/N: render only the indices i of the range with i % N == I, so that N "
+            "processes share one job and folder.",
+        ),
+    ] = None,
+    list_kinds: Annotated[
+        bool,
+        typer.Option(
+            "--list-kinds",
+            callback=_list_kinds,
+            is_eager=True,
+            help="List the scene kinds and their weights, then exit.",
+        ),
+    ] = False,
     version: VersionOption = False,
 ) -> None:
     if size is not None:
         with user_errors():
             width, height = parse_size(size)
+    try:
+        shard_ij = parse_shard(shard) if shard is not None else None
+        kind_set = _kind_list(kinds)
+        excluded = _kind_list(exclude_kinds) or ()
+        allowed_kinds(kind_set, excluded)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc)) from None
     _check_range("--sequences", sequences, 1, 100_000)
     _check_range("--frames", frames, 1, 100_000)
     _check_range("width", width, 8, 16384)
@@ -140,43 +208,88 @@ def render(
         max_depth=max_depth,
         half=not float32,
         samples=samples,
+        kinds=kind_set,
+        exclude_kinds=tuple(excluded),
     )
-    indices = range(start_index, start_index + sequences)
+    indices = shard_indices(range(start_index, start_index + sequences), shard_ij)
     todo = [
         i for i in indices if overwrite or not (out_dir / sequence_name(i) / "meta.json").is_file()
     ]
-    if len(todo) < sequences:
-        console.print(f"skipping {sequences - len(todo)} complete sequence(s) (use --overwrite)")
+    if len(todo) < len(indices):
+        console.print(f"skipping {len(indices) - len(todo)} complete sequence(s) (use --overwrite)")
     start = time.perf_counter()
     if cluster or cluster_address is not None:
         _render_cluster(out_dir, todo, seed, cfg, used, threads, cluster_address, retries)
+        done = len(todo)
     else:
         set_render_threads(threads)
-        columns = (
-            TextColumn("{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-        )
-        with Progress(*columns, console=console) as progress:
-            task = progress.add_task("render", total=len(todo) * frames)
-            for i in todo:
-                progress.update(task, description=sequence_name(i))
-                render_index(
+        done = _render_local(out_dir, todo, seed, cfg, used, overwrite)
+    console.print(
+        f"rendered {done} sequence(s) of {frames} frame(s) at {width}x{height}, "
+        f"{spp_ref} spp references, variant {used}, in {time.perf_counter() - start:.1f} s "
+        f"-> {out_dir}",
+        soft_wrap=True,
+    )
+
+
+def _render_local(
+    out_dir: Path, todo: list[int], seed: int, cfg: RenderConfig, variant: str, overwrite: bool
+) -> int:
+    """Render `todo` one after the other (each under its lock); returns how many were rendered.
+    Progress: rich's bar on a terminal, else one plain line per sequence (rate and ETA)."""
+    plain = not console.is_terminal
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
+    done = skipped = 0
+    t0 = time.perf_counter()
+    with Progress(*columns, console=console, disable=plain) as progress:
+        task = progress.add_task("render", total=len(todo) * cfg.frames)
+        for n, i in enumerate(todo):
+            name = sequence_name(i)
+            lock = try_lock(out_dir / name)
+            if lock is None:
+                skipped += 1
+                _say(plain, f"{name}: another process is rendering it, skipped")
+                progress.advance(task, cfg.frames)
+                continue
+            try:
+                progress.update(task, description=name)
+                ts = time.perf_counter()
+                if (out_dir / name / "meta.json").is_file() and not overwrite:
+                    progress.advance(task, cfg.frames)  # finished by another process meanwhile
+                    continue
+                meta = render_index(
                     out_dir,
                     i,
                     seed,
                     cfg,
-                    used,
+                    variant,
                     on_frame=lambda _t: progress.advance(task),
                     on_warning=_warn,
                 )
-    console.print(
-        f"rendered {len(todo)} sequence(s) of {frames} frame(s) at {width}x{height}, "
-        f"{spp_ref} spp references, variant {used}, in {time.perf_counter() - start:.1f} s "
-        f"-> {out_dir}"
-    )
+            finally:
+                release(lock)
+            done += 1
+            elapsed = time.perf_counter() - t0
+            eta = elapsed / (n + 1) * (len(todo) - n - 1)
+            _say(
+                plain,
+                f"{name} ({meta.get('kind')}) {time.perf_counter() - ts:.1f} s; {n + 1}/{len(todo)}"
+                f", {3600.0 * done / max(elapsed, 1e-9):.1f} sequences/h, ETA {eta / 60:.1f} min",
+            )
+    if skipped:
+        console.print(f"skipped {skipped} sequence(s) another process holds")
+    return done
+
+
+def _say(plain: bool, message: str) -> None:
+    if plain:
+        print(message, file=sys.stderr, flush=True)
 
 
 def _render_cluster(

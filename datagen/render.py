@@ -11,7 +11,16 @@ One folder per sequence:
   wrapping `path`); then `R,G,B` is the mean of the S samples and `colorB` an independent
   S-spp estimate;
 - `ref_NNNN.exr`: `R,G,B` high-spp reference of the same frame;
-- `meta.json` (written last, atomically: a sequence without it is incomplete).
+- `meta.json` (written last, atomically: a sequence without it is incomplete);
+- while it renders, `partial.json` (the job's settings, scene and exposure): a killed render
+  resumes from it, keeping the frames whose `frame_` and `ref_` files are both complete
+  (atomic writes: a file under its final name is whole) and rendering the rest with the same
+  seeds; a folder from other settings is cleared and rendered again.
+
+The scene is `kinds.generate_scene(seed, cfg.kinds, cfg.exclude_kinds)`; its `camera` path
+spec (paths.py) gives the cameras and the cut frames. At a cut (and at frame 0) the motion
+vectors are 0 and meta.json marks the frame (`cuts`, each camera's `reset`): the contract's
+`reset = 1`. A description without `camera` (the `legacy` kind) gets the original orbit.
 
 Radiance: `path` integrator, box reconstruction filter, multiplied by one
 per-sequence exposure factor (equivalent to scaling every emitter) chosen from
@@ -25,19 +34,22 @@ import json
 import os
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..runtime.sequences.atomic import write_text_atomic
-from ..runtime.sequences.exr import write_exr
+from ..runtime.sequences.exr import read_exr_header, write_exr
 from ..runtime.sequences.samples import DEFAULT_SAMPLE_FEATURES, sample_channels
-from .camera import Camera, orbit_path
+from .camera import Camera, orbit_path, project
 from .features import BACKGROUND_ALBEDO, BACKGROUND_DEPTH, canonical_features, override_albedo
-from .scene import ID_SCALE, build_scene, conductor_f0, random_scene, shape_materials
+from .kinds import KINDS, generate_scene
+from .paths import cameras_from_spec
+from .scene import DIELECTRICS, ID_SCALE, build_scene, conductor_f0, shape_materials
+from .seeds import derive_seed
 
-HALF_MAX = 65000.0  # keep radiance finite in float16 (max 65504)
+RADIANCE_LIMIT = 65000.0  # keep radiance finite in float16 (runtime.contract.HALF_MAX = 65504)
 _AOVS = "albedo:albedo,nn:sh_normal,pp:position"
 
 
@@ -53,11 +65,38 @@ class RenderConfig:
     half: bool = True
     pilot_spp: int = 16
     samples: int = 0  # S >= 1: write S per-sample layers, color = their mean (S spp)
+    kinds: tuple[str, ...] | None = None  # scene kinds to draw from (None: all weighted)
+    exclude_kinds: tuple[str, ...] = ()
 
 
-def derive_seed(*values: int) -> int:
-    """A well-mixed 31-bit seed from integers (stable across runs and platforms)."""
-    return int(np.random.SeedSequence([int(v) for v in values]).generate_state(1)[0] >> 1)
+PARTIAL = "partial.json"
+REF_SPP_CAP = 4096  # a kind's ref_spp_scale never raises the reference count above this
+MAX_REDRAWS = 8  # shots drawn again (from derived seeds) when one is unusable
+NEAR_DEPTH = 0.2  # world units: a view mostly nearer than this is inside or against a shape
+NEAR_FRACTION = 0.3
+BLACK_LUMINANCE = 1e-5  # mean pilot radiance below this: frame 0 sees no light
+
+
+def reference_spp(spp_ref: int, kind: str | None) -> int:
+    """The reference sample count of a sequence: `spp_ref` times its kind's `ref_spp_scale`
+    (kinds whose references converge slowly), never above max(spp_ref, REF_SPP_CAP)."""
+    scale = KINDS[kind].ref_spp_scale if kind in KINDS else 1
+    return min(spp_ref * scale, max(spp_ref, REF_SPP_CAP))
+
+
+def shot_problem(mi, mi_scene, aov, cams: list[Camera], pilot: np.ndarray) -> str | None:
+    """Why a drawn shot is unusable (None: usable): frame 0 black, or on some frame the
+    camera inside or against a shape (a random camera path can enter a prop or a wall)."""
+    lum = float(np.mean(pilot))
+    if not lum > BLACK_LUMINANCE:
+        return f"frame 0 is black (mean pilot radiance {lum:.2g})"
+    for t, cam in enumerate(cams):
+        pp = _aovs(mi, mi_scene, aov, cam)["pp"].astype(np.float64)
+        hit = np.linalg.norm(pp, axis=-1) > 0
+        near = float((hit & (project(pp, cam)[2] < NEAR_DEPTH)).mean())
+        if near > NEAR_FRACTION:
+            return f"frame {t}: {near:.0%} of the view nearer than {NEAR_DEPTH}"
+    return None
 
 
 def write_json_atomic(path: Path, data: dict) -> None:
@@ -133,7 +172,7 @@ def albedo_table(mi, desc: dict) -> np.ndarray:
     materials = list(shape_materials(desc).values())
     table = np.full((len(materials) + 1, 3), np.nan)
     for i, mat in enumerate(materials):
-        if mat is None:
+        if mat is None or mat["type"] in DIELECTRICS:  # emitters, glass and water: 1
             table[i + 1] = 1.0
         elif mat["type"] in ("conductor", "roughconductor"):
             table[i + 1] = conductor_f0(mi, mat["material"])
@@ -180,6 +219,45 @@ def _sample_layers(
     return layers, total / len(seeds), replaced
 
 
+def _complete_frames(out: Path, frames: int) -> set[int]:
+    """Frames whose `frame_` and `ref_` files are both whole (readable EXR headers)."""
+    done = set()
+    for t in range(frames):
+        try:
+            read_exr_header(out / f"frame_{t:04d}.exr")
+            read_exr_header(out / f"ref_{t:04d}.exr")
+        except Exception:  # missing or unreadable: render it again
+            continue
+        done.add(t)
+    return done
+
+
+def _clear(out: Path, keep: set[int]) -> None:
+    """Remove meta.json, the frames not in `keep` and temp files a killed write left."""
+    (out / "meta.json").unlink(missing_ok=True)
+    for p in [*out.glob("frame_*.exr"), *out.glob("ref_*.exr")]:
+        try:
+            t = int(p.stem.split("_")[1])
+        except ValueError:
+            t = -1
+        if t not in keep:
+            p.unlink(missing_ok=True)
+    # runtime/sequences/atomic.py temp files: .<stem>.<8 chars>.tmp<ext>
+    for p in out.glob(".*.tmp.*"):
+        p.unlink(missing_ok=True)
+
+
+def _resume_point(out: Path, job: dict, frames: int) -> tuple[set[int], float | None]:
+    """Frames to keep and the exposure to reuse, from `partial.json` when it describes `job`."""
+    try:
+        partial = json.loads((out / PARTIAL).read_text())
+    except (OSError, ValueError):
+        return set(), None
+    if partial.get("job") != job:
+        return set(), None
+    return _complete_frames(out, frames), float(partial["exposure"])
+
+
 def render_sequence(
     out_dir: str | os.PathLike,
     scene_seed: int,
@@ -189,52 +267,86 @@ def render_sequence(
     on_frame: Callable[[int], None] | None = None,
     scene: dict | None = None,
     cameras: list[Camera] | None = None,
+    cuts: list[int] | None = None,
     meta_extra: dict | None = None,
 ) -> dict:
-    """Render one sequence into `out_dir` (created); return its meta.json content.
+    """Render one sequence into `out_dir` (created), resuming a killed render of the same job;
+    return its meta.json content.
 
     The Mitsuba variant must already be set (see `variant.select_variant`). `scene`
-    (a `random_scene`-style description) and `cameras` override the ones drawn
-    from `scene_seed` (for tests and hand-made shots); `meta_extra` is merged into meta.json.
+    (a `generate_scene`-style description) and `cameras` (with their `cuts`) override the ones
+    drawn from `scene_seed` (for tests and hand-made shots); `meta_extra` is merged into
+    meta.json. `on_frame(t)` is called for every frame, kept ones included.
     """
     import mitsuba as mi
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    for stale in [*out.glob("frame_*.exr"), *out.glob("ref_*.exr"), out / "meta.json"]:
-        stale.unlink(missing_ok=True)
 
-    desc = scene if scene is not None else random_scene(scene_seed)
-    rng = np.random.default_rng(derive_seed(scene_seed, 1))
-    cams = orbit_path(rng, cfg.frames, cfg.width, cfg.height)
-    if cameras is not None:
-        cams = list(cameras)
-    mi_scene = build_scene(desc)
-    id_scene = build_scene(desc, id_pass=True)
-    alb_table = albedo_table(mi, desc)
     path = mi.load_dict({"type": "path", "max_depth": cfg.max_depth})
     aov = mi.load_dict({"type": "aov", "aovs": _AOVS})
+    pilot_seed = derive_seed(scene_seed, 2)
+    redraws: list[dict] = []
+    draw_seed = scene_seed
+    for attempt in range(MAX_REDRAWS + 1):
+        if scene is not None:
+            desc = scene
+        else:
+            desc = generate_scene(draw_seed, cfg.kinds, cfg.exclude_kinds)
+        rng = np.random.default_rng(derive_seed(draw_seed, 1))
+        cams = orbit_path(rng, cfg.frames, cfg.width, cfg.height)  # legacy; draws rng as before
+        cut_list: list[int] = []
+        if "camera" in desc:
+            cams, cut_list = cameras_from_spec(desc["camera"], cfg.frames, cfg.width, cfg.height)
+        if cameras is not None:
+            cams, cut_list = list(cameras), sorted(cuts or [])
+        target = float(rng.uniform(0.25, 0.6))
+        mi_scene = build_scene(desc)
+        pilot, _ = _radiance(mi, mi_scene, path, cams[0], cfg.pilot_spp, pilot_seed, "independent")
+        pilot = np.nan_to_num(pilot, nan=0.0, posinf=0.0, neginf=0.0)
+        why = None if scene is not None else shot_problem(mi, mi_scene, aov, cams, pilot)
+        if why is None:
+            break
+        redraws.append({"scene_seed": int(draw_seed), "kind": desc.get("kind"), "why": why})
+        draw_seed = derive_seed(scene_seed, 3, attempt)
+    else:
+        raise RuntimeError(f"{out}: no usable shot in {MAX_REDRAWS + 1} draws: {redraws}")
+    job = json.loads(json.dumps({
+        "config": asdict(cfg), "scene_seed": int(scene_seed), "variant": variant,
+        "mitsuba": mi.__version__, "scene": desc, "cuts": cut_list,
+        "spp_ref": reference_spp(cfg.spp_ref, desc.get("kind")),
+        "cameras": [c.to_json() for c in cams],
+    }))  # fmt: skip
+    keep, exposure = _resume_point(out, job, len(cams))
+    _clear(out, keep)
+
+    id_scene = build_scene(desc, id_pass=True)
+    alb_table = albedo_table(mi, desc)
     aov_id = mi.load_dict({"type": "aov", "aovs": "id:albedo"})
     aov_path = mi.load_dict(
         {"type": "aov", "aovs": _AOVS, "integrator": {"type": "path", "max_depth": cfg.max_depth}}
     )
     spp = max(1, cfg.samples)
 
-    pilot, _ = _radiance(
-        mi, mi_scene, path, cams[0], cfg.pilot_spp, derive_seed(scene_seed, 2), "independent"
-    )
-    target = float(rng.uniform(0.25, 0.6))
-    exposure = auto_exposure(np.nan_to_num(pilot, nan=0.0, posinf=0.0, neginf=0.0), target)
-    limit = HALF_MAX if cfg.half else None
+    if exposure is None:
+        exposure = auto_exposure(pilot, target)
+        write_json_atomic(out / PARTIAL, {"job": job, "exposure": exposure})
+    limit = RADIANCE_LIMIT if cfg.half else None
     replaced = 0
     seeds = []
+    spp_ref = requested_ref = reference_spp(cfg.spp_ref, desc.get("kind"))
     for t, cam in enumerate(cams):
         s_a, s_b, s_ref = (derive_seed(scene_seed, 100 + t, k) for k in range(3))
         seeds.append({"color": s_a, "colorB": s_b, "ref": s_ref})
+        sample_seeds = [derive_seed(scene_seed, 100 + t, 10 + i) for i in range(cfg.samples)]
+        if cfg.samples:
+            seeds[-1]["samples"] = sample_seeds
+        if t in keep:
+            if on_frame is not None:
+                on_frame(t)
+            continue
         sample_layers: dict[str, np.ndarray] = {}
         if cfg.samples:  # color = the mean of S 1-spp samples, each written as layers
-            sample_seeds = [derive_seed(scene_seed, 100 + t, 10 + i) for i in range(cfg.samples)]
-            seeds[-1]["samples"] = sample_seeds
             sample_layers, noisy, n = _sample_layers(
                 mi, (mi_scene, id_scene), (aov_path, aov_id), alb_table, cam, sample_seeds,
                 exposure, limit,
@@ -244,7 +356,7 @@ def render_sequence(
         else:
             imgs = [_radiance(mi, mi_scene, path, cam, 1, s_a, "independent")[0]]
         imgs.append(_radiance(mi, mi_scene, path, cam, spp, s_b, "independent")[0])
-        ref_img, spp_ref = _radiance(mi, mi_scene, path, cam, cfg.spp_ref, s_ref, "multijitter")
+        ref_img, spp_ref = _radiance(mi, mi_scene, path, cam, requested_ref, s_ref, "multijitter")
         imgs.append(ref_img)
         clean = []
         for img in imgs:
@@ -259,22 +371,27 @@ def render_sequence(
         ids = decode_ids(_aovs(mi, id_scene, aov_id, cam)["id"][..., 0])
         hit = ids > 0
         albedo = override_albedo(a["albedo"], ids, alb_table)
-        prev = cams[t - 1] if t > 0 else None
+        prev = cams[t - 1] if t > 0 and t not in cut_list else None  # a cut: no previous frame
         feats = canonical_features(albedo, a["nn"], a["pp"], hit, cam, prev)
         channels = {**_rgb("", noisy), **_rgb("colorB.", noisy_b), **feats, **sample_layers}
         write_exr(out / f"frame_{t:04d}.exr", channels, half=cfg.half)
         write_exr(out / f"ref_{t:04d}.exr", _rgb("", ref), half=cfg.half)
         if on_frame is not None:
             on_frame(t)
+    if keep and spp_ref == requested_ref:  # every frame kept: the sampler's count, as rendered
+        spp_ref = _multijitter_count(mi, requested_ref)
     if replaced:
         warnings.warn(
             f"{out}: replaced {replaced} NaN/Inf radiance values with 0", RuntimeWarning, 2
         )
+    resets = [t == 0 or t in cut_list for t in range(len(cams))]
     meta = {
         "format": "rtdenoise-sequence-1",
         "scene_seed": int(scene_seed),
+        "kind": desc.get("kind", "custom"),
         "frame_count": len(cams),
         "resolution": [cfg.width, cfg.height],
+        "cuts": cut_list,
         "spp": {"color": spp, "colorB": spp, "ref": spp_ref, "exposure_pilot": cfg.pilot_spp},
         "samples": cfg.samples,
         "storage": "float16" if cfg.half else "float32",
@@ -288,11 +405,17 @@ def render_sequence(
         },
         "exposure": exposure,
         "nonfinite_replaced": replaced,
+        "resumed_frames": sorted(keep),
+        "redraws": redraws,
         "seeds": seeds,
         "cameras": [
-            {"frame": t, **{k: v for k, v in c.to_json().items() if k not in ("width", "height")}}
+            {
+                "frame": t,
+                "reset": resets[t],
+                **{k: v for k, v in c.to_json().items() if k not in ("width", "height")},
+            }
             for t, c in enumerate(cams)
-        ],
+        ],  # fmt: skip
         "camera_model": "pinhole, fov in degrees along x (Mitsuba perspective, fov_axis=x)",
         "conventions": {
             "color": f"linear HDR radiance, {spp} spp, times `exposure`; colorB: independent "
@@ -300,16 +423,25 @@ def render_sequence(
             "samples": "sample<i>.R/G/B radiance (times `exposure`), sample<i>.albedo / .normal / "
             ".depth as the pixel buffers, at the sample's own jittered position",
             "albedo": "aov albedo clamped to [0, 1]; conductors: RGB reflectance at normal "
-            f"incidence; emitters 1; background {BACKGROUND_ALBEDO}",
+            f"incidence; emitters and dielectrics 1; background {BACKGROUND_ALBEDO}",
             "normal": "camera space, x right, y up, z towards the camera, unit, facing the "
             "camera; background 0",
             "depth": f"planar view depth (world units); background {BACKGROUND_DEPTH}",
             "motion": "pixels, previous position = current + motion, x right, y down; "
-            "background: environment direction seen by the previous camera; frame 0: 0",
+            "background: environment direction seen by the previous camera; frame 0 and "
+            "cut frames: 0",
+            "cuts": "frames where a new shot begins: the camera jumps, the history must be "
+            "reset (contract: reset = 1; cameras[t].reset is true at frame 0 and at cuts)",
             "pixel_centres": "+0.5; features sampled at pixel centres, radiance box-filtered",
         },
         "scene": desc,
         **(meta_extra or {}),
     }
     write_json_atomic(out / "meta.json", meta)
+    (out / PARTIAL).unlink(missing_ok=True)
     return meta
+
+
+def _multijitter_count(mi, spp: int) -> int:
+    """The sample count a `multijitter` sampler uses for a requested `spp`."""
+    return int(mi.load_dict({"type": "multijitter", "sample_count": spp}).sample_count())

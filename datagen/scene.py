@@ -15,9 +15,14 @@ import math
 
 import numpy as np
 
+from .meshes import Mesh, mesh_arrays
 from .textures import PATTERNS, pattern_texture, sky_envmap
 
 CONDUCTORS = ("Au", "Cu", "Al", "Ag", "Cr", "W", "Ni_palik", "CuO")
+DIELECTRICS = ("dielectric", "roughdielectric", "thindielectric")
+
+
+SHAPES = ("ground", "sphere", "cube", "cylinder", "torus", "panel", "mesh")
 
 
 def _color(rng: np.random.Generator, lo: float = 0.05, hi: float = 0.9) -> list[float]:
@@ -185,7 +190,9 @@ def _mi_texture(mi, tex: dict) -> dict:
             "color1": {"type": "rgb", "value": tex["color1"]},
             "to_uv": to_uv,
         }
-    img = pattern_texture(tex["pattern"], tex["color0"], tex["color1"], tex["seed"])
+    img = pattern_texture(
+        tex["pattern"], tex["color0"], tex["color1"], tex["seed"], tex.get("size", 128)
+    )
     return {"type": "bitmap", "bitmap": mi.Bitmap(img), "to_uv": to_uv}
 
 
@@ -197,11 +204,36 @@ def _mi_material(mi, m: dict, two_sided: bool = False) -> dict:
         d = {"type": t, "diffuse_reflectance": _mi_texture(mi, m["diffuse_reflectance"])}
         if "alpha" in m:
             d["alpha"] = m["alpha"]
-    else:
+    elif t in DIELECTRICS:
+        d = {"type": t, "int_ior": m["int_ior"], "ext_ior": m.get("ext_ior", 1.000277)}
+        if "alpha" in m:
+            d["alpha"] = m["alpha"]
+        if "tint" in m:
+            d["specular_transmittance"] = {"type": "rgb", "value": m["tint"]}
+        return d  # never two-sided: a dielectric's side is its inside or outside
+    elif t in ("conductor", "roughconductor"):
         d = {"type": t, "material": m["material"]}
         if "alpha" in m:
             d["alpha"] = m["alpha"]
+    else:
+        raise ValueError(f"unknown material type {t!r}")
     return {"type": "twosided", "bsdf": d} if two_sided else d
+
+
+def _mi_mesh(mi, name: str, mesh: Mesh, bsdf):
+    """An `mi.Mesh` with vertex normals from a numpy `Mesh`."""
+    props = mi.Properties()
+    props["bsdf"] = bsdf
+    out = mi.Mesh(name, len(mesh.positions), len(mesh.faces), props, has_vertex_normals=True)
+    params = mi.traverse(out)
+    for key, arr, dtype in (
+        ("vertex_positions", mesh.positions, np.float32),
+        ("vertex_normals", mesh.normals, np.float32),
+        ("faces", mesh.faces, np.uint32),
+    ):
+        params[key] = type(params[key])(np.ascontiguousarray(arr, dtype=dtype).ravel())
+    params.update()
+    return out
 
 
 def _torus_mesh(
@@ -224,18 +256,7 @@ def _torus_mesh(
     faces = np.concatenate(
         [np.stack([v00, v01, v10], -1).reshape(-1, 3), np.stack([v10, v01, v11], -1).reshape(-1, 3)]
     )
-    props = mi.Properties()
-    props["bsdf"] = bsdf
-    mesh = mi.Mesh(name, nu * nv, len(faces), props, has_vertex_normals=True)
-    params = mi.traverse(mesh)
-    for key, arr, dtype in (
-        ("vertex_positions", pos, np.float32),
-        ("vertex_normals", normal, np.float32),
-        ("faces", faces, np.uint32),
-    ):
-        params[key] = type(params[key])(np.ascontiguousarray(arr, dtype=dtype).ravel())
-    params.update()
-    return mesh
+    return _mi_mesh(mi, name, Mesh(pos.reshape(-1, 3), normal.reshape(-1, 3), faces), bsdf)
 
 
 def _look_at_up(pos, target) -> list[float]:
@@ -359,19 +380,24 @@ def build_scene(desc: dict, *, id_pass: bool = False):
                 .scale([w / 2, h / 2, 1]),
                 "bsdf": bsdf(key, mat, two_sided=True),
             }
+        elif shape == "mesh":
+            two_sided = o.get("two_sided", mat["type"] not in DIELECTRICS)
+            bsdf_obj = mi.load_dict(bsdf(key, mat, two_sided=two_sided))
+            d[key] = _mi_mesh(mi, key, mesh_arrays(o["mesh"]), bsdf_obj)
         else:
-            raise ValueError(f"unknown shape {shape!r}")
+            raise ValueError(f"unknown shape {shape!r}; expected {SHAPES}")
     black = {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.0}}
     for k, light in enumerate(desc["lights"]):
         key = f"light{k}"
         if light["type"] == "rectangle":
-            s = light["size"] / 2
+            size = light["size"]
+            sx, sy = (size, size) if isinstance(size, (int, float)) else size
             up = _look_at_up(light["position"], light["target"])
             d[key] = {
                 "type": "rectangle",
                 "to_world": T()
                 .look_at(origin=light["position"], target=light["target"], up=up)
-                .scale([s, s, 1]),
+                .scale([sx / 2, sy / 2, 1]),
             }
         else:
             d[key] = {"type": "sphere", "center": light["center"], "radius": light["radius"]}
@@ -384,7 +410,7 @@ def build_scene(desc: dict, *, id_pass: bool = False):
                 "radiance": {"type": "rgb", "value": light["radiance"]},
             }
     env = desc["environment"]
-    if id_pass:
+    if id_pass or env["type"] == "none":
         pass
     elif env["type"] == "constant":
         d["env"] = {"type": "constant", "radiance": {"type": "rgb", "value": env["radiance"]}}

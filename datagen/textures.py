@@ -11,6 +11,10 @@ import math
 import numpy as np
 
 PATTERNS = ("stripes", "noise", "grid", "dots")
+# High-frequency patterns (the `texture` and `thin` scene kinds); kept apart from PATTERNS,
+# which the `legacy` generator draws from, so that its scenes stay what they were.
+HF_PATTERNS = ("text", "fine_stripes", "fine_checker", "fine_noise")
+ALL_PATTERNS = PATTERNS + HF_PATTERNS
 
 
 def _value_noise(rng: np.random.Generator, size: int, octaves: int = 4) -> np.ndarray:
@@ -59,11 +63,48 @@ def pattern_texture(
         n = rng.integers(3, 8)
         fx, fy = (x * n) % 1.0 - 0.5, (y * n) % 1.0 - 0.5
         mask = (fx * fx + fy * fy < rng.uniform(0.04, 0.16)).astype(np.float64)
+    elif pattern in HF_PATTERNS:
+        mask = _hf_mask(pattern, rng, size)
     else:
-        raise ValueError(f"unknown pattern {pattern!r}; expected one of {PATTERNS}")
+        raise ValueError(f"unknown pattern {pattern!r}; expected one of {ALL_PATTERNS}")
     c0, c1 = np.asarray(color0), np.asarray(color1)
     tex = c0 * (1.0 - mask[..., None]) + c1 * mask[..., None]
     return np.ascontiguousarray(np.clip(tex, 0.0, 1.0), dtype=np.float32)
+
+
+def _text_mask(rng: np.random.Generator, size: int) -> np.ndarray:
+    """Lines of random 3x5 glyphs (1-pixel strokes at 4 texels per glyph pixel): text-like."""
+    cell = max(1, size // 128)  # texels per glyph pixel
+    gw, gh = 4 * cell, 7 * cell  # glyph cell with spacing
+    glyphs = rng.random((32, 5, 3)) < 0.55
+    mask = np.zeros((size, size))
+    for row in range(size // gh):
+        line = rng.integers(0, 32, size=size // gw)
+        line[rng.random(len(line)) < 0.15] = -1  # word gaps
+        for col, g in enumerate(line):
+            if g < 0:
+                continue
+            block = np.kron(glyphs[g], np.ones((cell, cell)))
+            y0, x0 = row * gh + cell, col * gw
+            mask[y0 : y0 + 5 * cell, x0 : x0 + 3 * cell] = block
+    return mask
+
+
+def _hf_mask(pattern: str, rng: np.random.Generator, size: int) -> np.ndarray:
+    """Masks with detail near the texel scale (aliasing-prone once minified)."""
+    y, x = np.mgrid[0:size, 0:size] / size
+    if pattern == "text":
+        return _text_mask(rng, size)
+    if pattern == "fine_stripes":
+        ang = rng.uniform(0.0, math.pi)
+        freq = rng.integers(20, 48)
+        s = np.sin(2 * math.pi * freq * (x * math.cos(ang) + y * math.sin(ang)))
+        return (s > 0).astype(np.float64)
+    if pattern == "fine_checker":
+        n = int(rng.integers(16, 40))
+        return ((np.floor(x * n) + np.floor(y * n)) % 2).astype(np.float64)
+    noise = _value_noise(rng, size, octaves=7)  # fine_noise: thresholded, sharp-edged blobs
+    return (noise > np.median(noise)).astype(np.float64)
 
 
 def sky_envmap(

@@ -9,11 +9,13 @@ box-filtered reference mixes surfaces that the pixel-centre features and motion
 do not describe, e.g. the anti-aliased rim of a bright light); the PSNR (on tau-mapped images,
 tau(x) = (x / (1 + x))^(1/2.4), Isik21 eq. 14) must rise a lot over the
 unwarped previous reference on the same pixels. A wrong sign or axis makes
-the warp worse than no warp.
+the warp worse than no warp. Frames that meta.json lists as `cuts` have no previous frame
+(their motion is 0, the history is reset) and are not scored.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -86,12 +88,22 @@ def _rgb(ch: dict[str, np.ndarray], prefix: str = "") -> np.ndarray:
     return np.stack([ch[f"{prefix}{c}"] for c in "RGB"], axis=-1).astype(np.float64)
 
 
+def sequence_cuts(seq_dir: str | os.PathLike) -> set[int]:
+    """The cut frames meta.json lists (none without meta.json or `cuts`)."""
+    meta = Path(seq_dir) / "meta.json"
+    if not meta.is_file():
+        return set()
+    return {int(t) for t in json.loads(meta.read_text()).get("cuts", [])}
+
+
 def warp_report(seq_dir: str | os.PathLike) -> list[FrameWarp]:
-    """Per-frame warped vs static PSNR of the references of one sequence folder."""
+    """Per-frame warped vs static PSNR of the references of one sequence folder (frames after
+    a previous frame of the same shot: not frame 0, not the cuts)."""
     seq = Path(seq_dir)
     frames = sorted(seq.glob("frame_*.exr"))
     if len(frames) < 2:
         raise ValueError(f"{seq}: need at least 2 frames, found {len(frames)}")
+    cuts = sequence_cuts(seq)
     out = []
     prev_ref = prev_depth = None
     for path in frames:
@@ -99,7 +111,7 @@ def warp_report(seq_dir: str | os.PathLike) -> list[FrameWarp]:
         f = read_exr(path)
         ref = tonemap(_rgb(read_exr(seq / f"ref_{t:04d}.exr")))
         depth = f["depth.Z"].astype(np.float64)[..., None]
-        if prev_ref is not None:
+        if prev_ref is not None and t not in cuts:
             motion = np.stack([f["motion.X"], f["motion.Y"]], axis=-1).astype(np.float64)
             prev_edges = depth_edges(prev_depth[..., 0])[..., None].astype(np.float64)
             stack = np.concatenate([prev_ref, prev_depth, prev_edges], -1)
@@ -111,8 +123,8 @@ def warp_report(seq_dir: str | os.PathLike) -> list[FrameWarp]:
             out.append(
                 FrameWarp(
                     frame=t,
-                    psnr_warped=psnr(warped[..., :3], ref, valid),
-                    psnr_static=psnr(prev_ref, ref, valid),
+                    psnr_warped=psnr(warped[..., :3], ref, valid) if valid.any() else np.nan,
+                    psnr_static=psnr(prev_ref, ref, valid) if valid.any() else np.nan,
                     valid_fraction=float(valid.mean()),
                 )
             )
@@ -121,5 +133,7 @@ def warp_report(seq_dir: str | os.PathLike) -> list[FrameWarp]:
 
 
 def warp_gain_db(seq_dir: str | os.PathLike) -> float:
-    """Mean PSNR gain (dB) of motion-warped over unwarped previous references."""
-    return float(np.mean([r.gain_db for r in warp_report(seq_dir)]))
+    """Mean PSNR gain (dB) of motion-warped over unwarped previous references, over the frames
+    with valid pixels (NaN when none has: e.g. a fast pan where nothing stays in view)."""
+    gains = [r.gain_db for r in warp_report(seq_dir) if r.valid_fraction > 0]
+    return float(np.mean(gains)) if gains else float("nan")

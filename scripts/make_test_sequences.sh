@@ -5,7 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=rtdenoise/assets/sequences
 python -m rtdenoise.cli.render "$OUT" --sequences 3 --frames 8 --size 64x64 \
-    --spp-ref 1024 --seed 1 --variant scalar_rgb --overwrite
+    --spp-ref 1024 --seed 1 --variant scalar_rgb --kinds legacy --overwrite
 python -c "
 from rtdenoise.datagen.validate import warp_report
 from rtdenoise.shipped import sample_sequences
