@@ -27,7 +27,7 @@ import numpy as np
 
 from rtdenoise.runtime.contract import SAMPLES
 
-from .data import SequenceData, load_sequence
+from .data import SequenceData, load_sequence, sequence_cuts
 
 CACHE_VERSION = 1
 _DONE = "sequence.json"
@@ -55,11 +55,12 @@ def compact(arr: np.ndarray) -> np.ndarray:
     return half if np.array_equal(half.astype(arr.dtype), arr) else arr.astype(np.float32)
 
 
-def _open(entry: Path, name: str, buffers: Sequence[str]) -> SequenceData:
+def _open(entry: Path, folder: Path, buffers: Sequence[str]) -> SequenceData:
     return SequenceData(
-        name=name,
+        name=folder.name,
         buffers={b: np.load(entry / f"{b}.npy", mmap_mode="r") for b in buffers},
         reference=np.load(entry / "reference.npy", mmap_mode="r"),
+        cuts=sequence_cuts(folder),
     )
 
 
@@ -73,7 +74,7 @@ def cached_sequence(
     folder, cache = Path(folder), Path(cache)
     entry = cache / f"{folder.name}-{cache_key(folder, buffers, sample_features)}"
     if (entry / _DONE).is_file():
-        return _open(entry, folder.name, buffers)
+        return _open(entry, folder, buffers)
     seq = load_sequence(folder, buffers, sample_features)
     cache.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{entry.name}.", dir=cache))
@@ -91,7 +92,7 @@ def cached_sequence(
                 raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    return _open(entry, folder.name, buffers)
+    return _open(entry, folder, buffers)
 
 
 __all__ = ["CACHE_VERSION", "cache_key", "cached_sequence", "compact"]

@@ -31,6 +31,7 @@ training sets larger than memory.
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -66,6 +67,16 @@ class SequenceData:
     name: str
     buffers: dict[str, np.ndarray]
     reference: np.ndarray
+    cuts: tuple[int, ...] = ()  # frames that start a new shot (meta.json "cuts", datagen)
+
+    def clip_starts(self, length: int) -> list[int]:
+        """First frames of the `length`-frame clips that cross no cut (a clip may start at
+        one: its first frame resets the history anyway)."""
+        return [
+            t0
+            for t0 in range(self.frames - length + 1)
+            if not any(t0 < c < t0 + length for c in self.cuts)
+        ]
 
     @property
     def frames(self) -> int:
@@ -119,7 +130,21 @@ def load_sequence(
         name=folder.name,
         buffers={name: np.stack(arrs).astype(np.float32) for name, arrs in stacks.items()},
         reference=np.stack(refs).astype(np.float32),
+        cuts=sequence_cuts(folder),
     )
+
+
+def sequence_cuts(folder: str | os.PathLike) -> tuple[int, ...]:
+    """The frames of a rendered sequence that start a new shot: `cuts` of its meta.json
+    (denoise-render writes it, docs/data.md); none without one. InputError for a bad file."""
+    path = Path(folder) / "meta.json"
+    if not path.is_file():
+        return ()
+    try:
+        cuts = json.loads(path.read_text()).get("cuts", [])
+        return tuple(sorted(int(c) for c in cuts))
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise InputError(f"{path}: unreadable 'cuts' ({exc})") from exc
 
 
 def available_memory() -> int | None:
@@ -235,6 +260,14 @@ class ClipSampler:
         if any(s < 1 for s in self.sample_counts):
             raise InputError(f"sample counts must be >= 1, got {list(self.sample_counts)}")
         self.frames = max(1, min(int(frames), min(s.frames for s in self.sequences)))
+        # clips never cross a camera cut: sequences with no such clip are left out
+        starts = [s.clip_starts(self.frames) for s in self.sequences]
+        kept = [(s, st) for s, st in zip(self.sequences, starts, strict=True) if st]
+        if not kept:
+            raise InputError(
+                f"every sequence has a camera cut inside every {self.frames}-frame clip"
+            )
+        self.sequences, self._starts = [s for s, _ in kept], [st for _, st in kept]
         side = min(int(crop), *(min(s.size) for s in self.sequences))
         self.crop = side - side % multiple
         if self.crop < multiple or self.crop < 1:
@@ -249,8 +282,9 @@ class ClipSampler:
         """One clip: buffers name -> (T, C, crop, crop), reference (T, 3, crop, crop), drawn
         from `rng` (default: the sampler's own)."""
         rng = self.rng if rng is None else rng
-        seq = self.sequences[int(rng.integers(len(self.sequences)))]
-        t0 = int(rng.integers(seq.frames - self.frames + 1))
+        k = int(rng.integers(len(self.sequences)))
+        seq, starts = self.sequences[k], self._starts[k]
+        t0 = starts[int(rng.integers(len(starts)))]  # = the old draw where there is no cut
         h, w = seq.size
         y0 = int(rng.integers(h - self.crop + 1))
         x0 = int(rng.integers(w - self.crop + 1))

@@ -76,3 +76,27 @@ def test_in_memory_loading_refuses_what_would_not_fit(tmp_path, monkeypatch):
     with pytest.raises(InputError, match="--cache"):
         load_sequences([seq_dir] * 2, INPUTS)  # 2 sequences > half of 3
     assert len(load_sequences([seq_dir] * 2, INPUTS, cache=tmp_path / "c")) == 2
+
+
+def test_clips_never_cross_a_camera_cut(tmp_path):
+    """A rendered sequence's meta.json `cuts` (denoise-render): clips start at or after a cut,
+    never across it; a sequence with a cut inside every clip is left out (cache too)."""
+    import json
+
+    from rtdenoise.models.data import ClipSampler
+
+    cut = write_sequence(tmp_path / "cut", frames=6, size=16)
+    (cut / "meta.json").write_text(json.dumps({"cuts": [3]}))
+    plain = write_sequence(tmp_path / "plain", frames=6, size=16, seed=1)
+    for loaded in (load_sequences([cut, plain], INPUTS),
+                   load_sequences([cut, plain], INPUTS, cache=tmp_path / "c")):  # fmt: skip
+        assert loaded[0].cuts == (3,) and loaded[1].cuts == ()
+        assert loaded[0].clip_starts(3) == [0, 3] and loaded[1].clip_starts(3) == [0, 1, 2, 3]
+        sampler = ClipSampler(loaded, np.random.default_rng(0), frames=3, crop=8, batch=1)
+        firsts = set()
+        for _ in range(60):
+            buffers, reference = sampler.clip()
+            firsts.add(float(reference[0, 0, 0, 0]))
+        assert len(firsts) > 2
+        whole = ClipSampler(loaded, np.random.default_rng(0), frames=6, crop=8, batch=1)
+        assert [s.name for s in whole.sequences] == ["plain"]  # the cut one crosses its cut
