@@ -40,7 +40,6 @@ from .contract import (
     contract_from_session,
 )
 from .errors import InputError
-from .external_data import check_external_data
 from .guard import GuardReport, GuardTotals, count_nonfinite, guard_buffers, replace_nonfinite
 from .interrupts import deferred_signals
 from .online import OnlineControls
@@ -49,13 +48,12 @@ from .session import (
     SERIAL_KERNELS_BELOW,
     ModelSource,
     Provider,
+    checked_model,
     kernel_thread_count,
     open_session,
     option_values,
-    resolve_model,
 )
 from .state import StateStore
-from .static_check import check_custom_nodes
 
 _RESET = {True: np.array(1.0, np.float32), False: np.array(0.0, np.float32)}
 
@@ -117,15 +115,7 @@ class Denoiser:
         relearn_at_cuts: bool = False,
         overrides: Mapping[str, float] | None = None,
     ) -> None:
-        if isinstance(model, (bytes, bytearray)):
-            self.source, payload = "<model bytes>", bytes(model)
-            check_external_data(payload)
-            check_custom_nodes(payload, self.source)
-        else:
-            path = resolve_model(model)
-            self.source, payload = str(path), str(path)
-            check_external_data(path)  # every external data file inside the model's folder
-            check_custom_nodes(path.read_bytes(), self.source)  # attributes vs shapes
+        self.source, payload = checked_model(model)
         opened = open_session(
             payload,
             self.source,

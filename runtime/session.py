@@ -21,8 +21,10 @@ import onnxruntime as ort
 
 from .contract import Contract, ContractError
 from .errors import InputError
+from .external_data import check_external_data
 from .memory import share_cpu_arena
 from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities
+from .static_check import check_custom_nodes
 
 ModelSource = str | os.PathLike | bytes
 Provider = str | tuple[str, dict[str, Any]]
@@ -76,6 +78,21 @@ def resolve_model(spec: str | os.PathLike) -> Path:
     if path.suffix.lower() in (".pt", ".pth"):
         raise InputError(f"{path}: is a PyTorch checkpoint; export it first (denoise-export)")
     return path
+
+
+def checked_model(model: ModelSource) -> tuple[str, str | bytes]:
+    """(the name errors give it, what ONNX Runtime loads) of a model given as a path,
+    `demo:<family>` or the serialized bytes, after the checks every file passes: its external
+    data inside its folder, its custom ops' attributes consistent with the recorded shapes."""
+    if isinstance(model, (bytes, bytearray)):
+        source, payload = "<model bytes>", bytes(model)
+        check_external_data(payload)
+        check_custom_nodes(payload, source)
+        return source, payload
+    path = resolve_model(model)
+    check_external_data(path)  # every external data file inside the model's folder
+    check_custom_nodes(path.read_bytes(), str(path))  # attributes vs shapes
+    return str(path), str(path)
 
 
 def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provider]:

@@ -43,10 +43,10 @@ def test_kernel_size_against_logit_channels_is_refused_at_load(tmp_path, fast):
 def test_before_the_check_the_portable_path_gave_a_wrong_finite_image(tmp_path, monkeypatch):
     """What the check prevents: with it bypassed the portable body runs and returns finite
     values (the fast path raises at run)."""
-    import rtdenoise.runtime.denoiser as denoiser_module
+    import rtdenoise.runtime.session as session_module
 
     path, _ = contradicting_afn(tmp_path)
-    monkeypatch.setattr(denoiser_module, "check_custom_nodes", lambda *a: 0)
+    monkeypatch.setattr(session_module, "check_custom_nodes", lambda *a: 0)
     den = Denoiser(path, fast_kernels=False, threads=1)
     rng = np.random.default_rng(0)
     frame = {
