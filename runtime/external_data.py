@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from .errors import InputError
+from .protobuf import Malformed, payloads
 
 # Field numbers (onnx/onnx.proto3) of the messages that can contain TensorProtos.
 _MODEL = {7: "graph", 20: "training_info", 25: "function"}
@@ -29,50 +30,6 @@ _ATTRIBUTE = {5: "tensor", 6: "graph", 10: "tensor", 11: "graph", 22: "sparse", 
 _SPARSE = {1: "tensor", 2: "tensor"}
 _TENSOR_EXTERNAL_DATA = 13
 _ENTRY_KEY, _ENTRY_VALUE = 1, 2
-
-
-class _Malformed(ValueError):
-    pass
-
-
-def _varint(buf: memoryview, i: int) -> tuple[int, int]:
-    value, shift = 0, 0
-    while True:
-        if i >= len(buf) or shift > 63:
-            raise _Malformed("truncated varint")
-        b = buf[i]
-        i += 1
-        value |= (b & 0x7F) << shift
-        if b < 0x80:
-            return value, i
-        shift += 7
-
-
-def _fields(buf: memoryview) -> Iterator[tuple[int, memoryview | None]]:
-    """(field number, payload of a length-delimited field, else None) of one message."""
-    i = 0
-    while i < len(buf):
-        key, i = _varint(buf, i)
-        number, wire = key >> 3, key & 7
-        if wire == 0:
-            _, i = _varint(buf, i)
-            yield number, None
-        elif wire == 1:
-            i += 8
-            yield number, None
-        elif wire == 5:
-            i += 4
-            yield number, None
-        elif wire == 2:
-            size, i = _varint(buf, i)
-            if i + size > len(buf):
-                raise _Malformed("field runs past the end")
-            yield number, buf[i : i + size]
-            i += size
-        else:
-            raise _Malformed(f"unsupported wire type {wire}")
-    if i != len(buf):
-        raise _Malformed("truncated field")
 
 
 _KINDS = {
@@ -88,18 +45,18 @@ _KINDS = {
 
 def _locations(buf: memoryview, kind: str, depth: int = 0) -> Iterator[str]:
     if depth > 64:
-        raise _Malformed("graphs nested too deep")
+        raise Malformed("graphs nested too deep")
     if kind == "tensor":
-        for number, payload in _fields(buf):
-            if number == _TENSOR_EXTERNAL_DATA and payload is not None:
-                entry = {n: bytes(p) for n, p in _fields(payload) if p is not None}
+        for number, payload in payloads(buf):
+            if number == _TENSOR_EXTERNAL_DATA:
+                entry = {n: bytes(p) for n, p in payloads(payload)}
                 if entry.get(_ENTRY_KEY) == b"location":
                     yield entry.get(_ENTRY_VALUE, b"").decode("utf-8", "replace")
         return
     children = _KINDS[kind]
-    for number, payload in _fields(buf):
+    for number, payload in payloads(buf):
         child = children.get(number)
-        if child is not None and payload is not None:
+        if child is not None:
             yield from _locations(payload, child, depth + 1)
 
 
@@ -112,7 +69,7 @@ def external_locations(data: bytes) -> list[str]:
         return []
     try:
         return list(_locations(memoryview(data), "model"))
-    except _Malformed as exc:
+    except Malformed as exc:
         raise ValueError(f"not a well-formed ONNX protobuf ({exc})") from None
 
 

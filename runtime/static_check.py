@@ -16,12 +16,11 @@ protobuf is read with the same wire-format reader as `external_data.py` (no `onn
 from __future__ import annotations
 
 import ast
-from collections.abc import Iterator
 
 from rtdenoise.ops import DOMAIN, SPECS
 
 from .errors import InputError
-from .external_data import _Malformed, _varint
+from .protobuf import Malformed, fields, varint
 
 # Field numbers (onnx/onnx.proto3).
 _MODEL_GRAPH = 7
@@ -36,27 +35,6 @@ _SYMBOL_VALUES = (4, 6)  # each symbol's value in the two tries (16*hb -> 64, th
 Dim = int | str
 
 
-def _fields(buf: memoryview) -> Iterator[tuple[int, int | memoryview]]:
-    """(field number, varint value or length-delimited payload) of one message."""
-    i = 0
-    while i < len(buf):
-        key, i = _varint(buf, i)
-        number, wire = key >> 3, key & 7
-        if wire == 0:
-            value, i = _varint(buf, i)
-            yield number, value
-        elif wire in (1, 5):
-            i += 8 if wire == 1 else 4
-        elif wire == 2:
-            size, i = _varint(buf, i)
-            if i + size > len(buf):
-                raise _Malformed("field runs past the end")
-            yield number, buf[i : i + size]
-            i += size
-        else:
-            raise _Malformed(f"unsupported wire type {wire}")
-
-
 def _text(v: int | memoryview) -> str:
     return bytes(v).decode("utf-8", "replace") if isinstance(v, memoryview) else ""
 
@@ -67,19 +45,19 @@ def _signed(v: int) -> int:
 
 def _value_info(buf: memoryview) -> tuple[str, list[Dim] | None]:
     name, dims = "", None
-    for n, v in _fields(buf):
+    for n, v in fields(buf):
         if n == _VI_NAME:
             name = _text(v)
         elif n == _VI_TYPE and isinstance(v, memoryview):
-            for tn, tv in _fields(v):
+            for tn, tv in fields(v):
                 if tn == _TYPE_TENSOR and isinstance(tv, memoryview):
-                    for sn, sv in _fields(tv):
+                    for sn, sv in fields(tv):
                         if sn == _TENSOR_SHAPE and isinstance(sv, memoryview):
                             dims = []
-                            for dn, dv in _fields(sv):
+                            for dn, dv in fields(sv):
                                 if dn == _SHAPE_DIM and isinstance(dv, memoryview):
                                     dim: Dim = "?"
-                                    for kn, kv in _fields(dv):
+                                    for kn, kv in fields(dv):
                                         if kn == _DIM_VALUE and isinstance(kv, int):
                                             dim = kv
                                         elif kn == _DIM_PARAM:
@@ -90,7 +68,7 @@ def _value_info(buf: memoryview) -> tuple[str, list[Dim] | None]:
 
 def _initializer(buf: memoryview) -> tuple[str, list[Dim]]:
     name, dims = "", []
-    for n, v in _fields(buf):
+    for n, v in fields(buf):
         if n == _INIT_NAME:
             name = _text(v)
         elif n == _INIT_DIMS:
@@ -99,13 +77,13 @@ def _initializer(buf: memoryview) -> tuple[str, list[Dim]]:
             else:  # packed
                 i = 0
                 while i < len(v):
-                    d, i = _varint(v, i)
+                    d, i = varint(v, i)
                     dims.append(d)
     return name, dims
 
 
 def _graph(data: bytes) -> memoryview | None:
-    for n, v in _fields(memoryview(data)):
+    for n, v in fields(memoryview(data)):
         if n == _MODEL_GRAPH and isinstance(v, memoryview):
             return v
     return None
@@ -120,7 +98,7 @@ def check_custom_nodes(data: bytes, source: str) -> int:
             return 0
         shapes: dict[str, list[Dim]] = {}
         nodes = []
-        for n, v in _fields(graph):
+        for n, v in fields(graph):
             if not isinstance(v, memoryview):
                 continue
             if n in (_GRAPH_INPUT, _GRAPH_OUTPUT, _GRAPH_VALUE_INFO):
@@ -135,7 +113,7 @@ def check_custom_nodes(data: bytes, source: str) -> int:
         checked = 0
         for node in nodes:
             op, domain, name, inputs, attrs = "", "", "", [], {}
-            for fn, fv in _fields(node):
+            for fn, fv in fields(node):
                 if fn == _NODE_OP:
                     op = _text(fv)
                 elif fn == _NODE_DOMAIN:
@@ -146,7 +124,7 @@ def check_custom_nodes(data: bytes, source: str) -> int:
                     inputs.append(_text(fv))
                 elif fn == _NODE_ATTR and isinstance(fv, memoryview):
                     key, value = "", None
-                    for an, av in _fields(fv):
+                    for an, av in fields(fv):
                         if an == _ATTR_NAME:
                             key = _text(av)
                         elif an == _ATTR_I and isinstance(av, int):
@@ -178,7 +156,7 @@ def check_custom_nodes(data: bytes, source: str) -> int:
                 ) from None
             checked += 1
         return checked
-    except _Malformed:
+    except Malformed:
         return 0  # not a model: ONNX Runtime's loader says so, in its words
 
 

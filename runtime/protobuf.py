@@ -1,0 +1,57 @@
+"""A minimal reader of the protobuf wire format, for what the runtime reads of an ONNX file
+without the `onnx` package (which it must not need): external-data locations
+(`external_data.py`) and the custom nodes' recorded shapes (`static_check.py`)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+
+class Malformed(ValueError):
+    """The bytes are not a well-formed protobuf message."""
+
+
+def varint(buf: memoryview, i: int) -> tuple[int, int]:
+    """(the varint at `i`, the index after it)."""
+    value, shift = 0, 0
+    while True:
+        if i >= len(buf) or shift > 63:
+            raise Malformed("truncated varint")
+        b = buf[i]
+        i += 1
+        value |= (b & 0x7F) << shift
+        if b < 0x80:
+            return value, i
+        shift += 7
+
+
+def fields(buf: memoryview) -> Iterator[tuple[int, int | memoryview | None]]:
+    """(field number, value) of one message: an int for a varint, the payload of a
+    length-delimited field, None for a fixed 32- or 64-bit one (skipped)."""
+    i = 0
+    while i < len(buf):
+        key, i = varint(buf, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = varint(buf, i)
+            yield number, value
+        elif wire in (1, 5):
+            i += 8 if wire == 1 else 4
+            yield number, None
+        elif wire == 2:
+            size, i = varint(buf, i)
+            if i + size > len(buf):
+                raise Malformed("field runs past the end")
+            yield number, buf[i : i + size]
+            i += size
+        else:
+            raise Malformed(f"unsupported wire type {wire}")
+    if i != len(buf):
+        raise Malformed("truncated field")
+
+
+def payloads(buf: memoryview) -> Iterator[tuple[int, memoryview]]:
+    """(field number, payload) of the length-delimited fields of one message."""
+    for number, value in fields(buf):
+        if isinstance(value, memoryview):
+            yield number, value
