@@ -40,16 +40,18 @@ def _checkpoint(spec: str) -> str | None:
     return None
 
 
-def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple[str, list[dict], list]]:
-    """(name, frames, references) of each folder with references (default: the bundled ones);
-    frames hold `buffers` (a per-sample model's `samples`: S = 1 from the pixel means when the
-    files have no sample layers)."""
+def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple]:
+    """(name, frames, references, cut indices) of each folder with references (default: the
+    bundled ones); frames hold `buffers` (a per-sample model's `samples`: S = 1 from the pixel
+    means when the files have no sample layers); the cuts from its meta.json (a rendered one)."""
     from rtdenoise.runtime.errors import InputError
     from rtdenoise.runtime.sequences.frames import (
         find_frames,
+        frame_number,
         match_references,
         read_frame,
         read_reference,
+        shot_cuts,
     )
     from rtdenoise.shipped import sample_sequences
 
@@ -60,7 +62,9 @@ def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple[str, list[
         if not all(refs):
             raise InputError(f"{folder}: every frame needs a reference ref_NNNN.exr for quality")
         frames = [read_frame(p, buffers=buffers).buffers for p in paths]
-        out.append((Path(folder).name, frames, [read_reference(r) for r in refs]))
+        cuts = shot_cuts(folder)
+        starts = [i for i, p in enumerate(paths) if i and frame_number(p) in cuts]
+        out.append((Path(folder).name, frames, [read_reference(r) for r in refs], starts))
     return out
 
 

@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from rtdenoise.runtime.contract import SAMPLES
+from rtdenoise.runtime.sequences.frames import shot_cuts
 
-from .data import SequenceData, load_sequence, sequence_cuts
+from .data import SequenceData, load_sequence
 
 CACHE_VERSION = 1
 _DONE = "sequence.json"
@@ -60,7 +61,7 @@ def _open(entry: Path, folder: Path, buffers: Sequence[str]) -> SequenceData:
         name=folder.name,
         buffers={b: np.load(entry / f"{b}.npy", mmap_mode="r") for b in buffers},
         reference=np.load(entry / "reference.npy", mmap_mode="r"),
-        cuts=sequence_cuts(folder),
+        cuts=shot_cuts(folder),
     )
 
 

@@ -31,7 +31,6 @@ training sets larger than memory.
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -47,6 +46,7 @@ from rtdenoise.runtime.sequences.frames import (
     find_reference,
     read_frame,
     read_reference,
+    shot_cuts,
 )
 from rtdenoise.runtime.sequences.samples import radiance_channels
 
@@ -67,7 +67,7 @@ class SequenceData:
     name: str
     buffers: dict[str, np.ndarray]
     reference: np.ndarray
-    cuts: tuple[int, ...] = ()  # frames that start a new shot (meta.json "cuts", datagen)
+    cuts: tuple[int, ...] = ()  # frames that start a new shot (runtime frames.shot_cuts)
 
     def clip_starts(self, length: int) -> list[int]:
         """First frames of the `length`-frame clips that cross no cut (a clip may start at
@@ -130,21 +130,8 @@ def load_sequence(
         name=folder.name,
         buffers={name: np.stack(arrs).astype(np.float32) for name, arrs in stacks.items()},
         reference=np.stack(refs).astype(np.float32),
-        cuts=sequence_cuts(folder),
+        cuts=shot_cuts(folder),
     )
-
-
-def sequence_cuts(folder: str | os.PathLike) -> tuple[int, ...]:
-    """The frames of a rendered sequence that start a new shot: `cuts` of its meta.json
-    (denoise-render writes it, docs/data.md); none without one. InputError for a bad file."""
-    path = Path(folder) / "meta.json"
-    if not path.is_file():
-        return ()
-    try:
-        cuts = json.loads(path.read_text()).get("cuts", [])
-        return tuple(sorted(int(c) for c in cuts))
-    except (ValueError, TypeError, AttributeError) as exc:
-        raise InputError(f"{path}: unreadable 'cuts' ({exc})") from exc
 
 
 def available_memory() -> int | None:

@@ -115,3 +115,17 @@ def test_memory_watch_lets_every_size_through_without_readings():
     watch.done("24x16", 384)
     watch.done("96x64", 6144)
     assert watch.refuse("3840x2160", 3840 * 2160) is None
+
+
+def test_quality_runs_a_contenders_cut_before_a_cut_frame():
+    """A sequence given with cut indices (a rendered one's meta.json): the contender's `cut`
+    runs before those frames, `reset` at the start only."""
+    calls = []
+    contender = compare.Contender(
+        "m", lambda f: f["color"], lambda: calls.append("reset"), ("color",),
+        cut=lambda: calls.append("cut"),
+    )  # fmt: skip
+    frame = {"color": np.ones((3, 4, 4), np.float32)}
+    ref = np.ones((3, 4, 4), np.float32)
+    compare.quality([contender], [("s", [frame] * 4, [ref] * 4, [2])])
+    assert calls == ["reset", "cut"]

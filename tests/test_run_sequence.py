@@ -14,6 +14,7 @@ import pytest
 
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.sequences.exr import read_exr, write_exr
+from rtdenoise.runtime.sequences.frames import frame_number
 from rtdenoise.runtime.sequences.layouts import get_layout
 from rtdenoise.runtime.sequences.run import Job, run_sequence
 
@@ -148,3 +149,22 @@ def test_runtime_run_imports_and_runs_without_torch(tmp_path):
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     # torch still blocked, and pass-through did not even load ONNX Runtime
     assert result == {"torch": "None", "loaded": [], "frames": 2}
+
+
+def test_a_camera_cut_in_meta_json_resets_the_history(tmp_path):
+    """A rendered sequence's meta.json `cuts` (denoise-render): the backend is reset before
+    that frame, with no warning (a cut is no gap)."""
+    seq = tmp_path / "seq"
+    seq.mkdir()
+    frames = make_frames(seq)
+    (seq / "meta.json").write_text(json.dumps({"cuts": [frame_number(frames[1])]}))
+    backend, warnings = Recorder(), []
+    run_sequence(
+        Job("s", frames, None, tmp_path / "out"),
+        backend,
+        get_layout("canonical"),
+        {},
+        on_frame=lambda: None,
+        on_warning=warnings.append,
+    )
+    assert backend.resets == 2 and warnings == []  # the start, then the cut

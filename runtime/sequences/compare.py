@@ -45,6 +45,9 @@ class Contender:
     # A new contender of the same denoiser with its own state (one per frame size, so that
     # sizes can be interleaved); None: stateless, this one serves every size.
     fresh: Callable[[], Contender] | None = None
+    # What a camera cut inside a sequence does (a model's reset, which keeps what an online
+    # model learned); None: `reset`.
+    cut: Callable[[], None] | None = None
 
 
 def _hwc(a: np.ndarray) -> np.ndarray:
@@ -78,7 +81,9 @@ def model_contender(name: str, denoiser: Any, remake: Callable[[], Any] | None =
     `remake()` builds another one like it (for `Contender.fresh`)."""
     fresh = None if remake is None else (lambda: model_contender(name, remake(), remake))
     buffers = tuple(denoiser.required_buffers)
-    return Contender(name, denoiser.process, _sequence_start(denoiser), buffers, fresh=fresh)
+    return Contender(
+        name, denoiser.process, _sequence_start(denoiser), buffers, fresh=fresh, cut=denoiser.reset
+    )
 
 
 def _sequence_start(denoiser: Any) -> Callable[[], None]:
@@ -323,18 +328,23 @@ def speed(
 
 def quality(
     contenders: Sequence[Contender],
-    sequences: Sequence[tuple[str, Sequence[Frame], Sequence[np.ndarray]]],
+    sequences: Sequence[tuple],
     progress: Callable[[str], None] = lambda _msg: None,
 ) -> dict[str, dict[str, Any]]:
-    """Per contender: PSNR, SSIM, TRMAE per sequence (frames with state) and their means."""
+    """Per contender: PSNR, SSIM, TRMAE per sequence (frames with state) and their means.
+    sequences: (name, frames, references) or (name, frames, references, cuts), cuts the
+    indices of the frames that start a new shot (the contender's `cut` runs before them)."""
     out: dict[str, dict[str, Any]] = {}
     for c in contenders:
         progress(f"quality: {c.name}")
         per_seq = {}
-        for name, frames, references in sequences:
+        for name, frames, references, *rest in sequences:
+            cuts = set(rest[0]) if rest else set()
             c.reset()
             metrics = SequenceMetrics()
-            for frame, ref in zip(frames, references, strict=True):
+            for i, (frame, ref) in enumerate(zip(frames, references, strict=True)):
+                if i in cuts:
+                    (c.cut or c.reset)()
                 metrics.add(np.asarray(c.denoise(c.prepare(frame)), np.float32), ref)
             s = metrics.summary()
             per_seq[name] = {k: s[k] for k in ("psnr", "ssim", "trmae")}
@@ -348,9 +358,7 @@ def quality(
     return out
 
 
-def noisy_quality(
-    sequences: Sequence[tuple[str, Sequence[Frame], Sequence[np.ndarray]]],
-) -> dict[str, Any]:
+def noisy_quality(sequences: Sequence[tuple]) -> dict[str, Any]:
     """The same scores for the noisy input itself (the baseline every denoiser must beat)."""
     identity = Contender("noisy input", lambda f: f["color"], lambda: None, ("color",))
     return quality([identity], sequences)["noisy input"]

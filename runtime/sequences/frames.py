@@ -27,6 +27,7 @@ default set when not given), or makes S = 1 from the pixel buffers when a file h
 from __future__ import annotations
 
 import glob
+import json
 import os
 import re
 from collections.abc import Collection, Iterator, Mapping, Sequence
@@ -61,6 +62,20 @@ class Frame:
     def size(self) -> tuple[int, int]:
         """(height, width)."""
         return tuple(self.buffers["color"].shape[1:])  # type: ignore[return-value]
+
+
+def shot_cuts(folder: str | os.PathLike) -> tuple[int, ...]:
+    """The frame numbers that start a new shot inside a rendered sequence: `cuts` of the
+    meta.json beside its frames (denoise-render writes it, docs/data.md); none without one.
+    A host resets the history there (a camera cut). InputError for an unreadable list."""
+    path = Path(folder) / "meta.json"
+    if not path.is_file():
+        return ()
+    try:
+        cuts = json.loads(path.read_text()).get("cuts", [])
+        return tuple(sorted(int(c) for c in cuts))
+    except (ValueError, TypeError, AttributeError) as exc:
+        raise InputError(f"{path}: unreadable 'cuts' ({exc})") from exc
 
 
 def frame_number(path: Spec) -> int | None:

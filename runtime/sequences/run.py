@@ -40,6 +40,7 @@ from .frames import (
     quantize_output,
     reference_pixels,
     scan_reference,
+    shot_cuts,
     write_rgb,
 )
 from .layouts import Layout
@@ -280,6 +281,7 @@ def _run_sequence(
     fed = -1  # index of the last frame the backend has seen (its history ends there)
     segment = 0  # index of the first frame after the last gap
     backend.reset()
+    cuts = {c for folder in {p.parent for p in job.frames} for c in shot_cuts(folder)}
     current = job.frames[0] if job.frames else job.out_dir
     window = None  # the previous frame's data window
     try:
@@ -287,6 +289,9 @@ def _run_sequence(
         for i, (path, ref, out_path) in enumerate(frames):
             current = path
             gap = gap_before(job.frames, i)
+            if i and not gap and frame_number(path) in cuts:  # a camera cut (meta.json)
+                segment = i
+                backend.reset()
             if gap:
                 segment = i
                 backend.reset()
