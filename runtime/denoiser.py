@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
+from . import bridge
 from .arrays import output_view, pad_edge, padded_size, planar_frame, returned_frame, store
 from .contract import (
     OPTION,
@@ -404,8 +405,6 @@ class Denoiser:
         if not self.fast_kernels:
             with deferred_signals(), placed(1) if self.pin_threads else nullcontext():
                 return run(*args)
-        from . import bridge
-
         team = kernel_thread_count(self._state.padded, self.threads, self.serial_below)
         where = placed(team) if self.pin_threads else nullcontext()
         with deferred_signals(), bridge.raise_kernel_errors(), bridge.numba_threads(team), where:

@@ -73,12 +73,12 @@ def external_locations(data: bytes) -> list[str]:
         raise ValueError(f"not a well-formed ONNX protobuf ({exc})") from None
 
 
-def check_external_data(model: str | os.PathLike | bytes) -> list[Path]:
+def check_external_data(model: str | os.PathLike | bytes, data: bytes | None = None) -> list[Path]:
     """The external data files of `model` (a path, or serialized bytes), after checking that
     each exists and, symlinks resolved, lies inside both the folder of the path as given (where
     ONNX Runtime reads it) and the folder of the model file itself (what newer versions allow).
     InputError naming the model and the location otherwise; a model given as bytes may have
-    no external data."""
+    no external data. data: the file's bytes when the caller has read them already."""
     if isinstance(model, (bytes, bytearray)):
         source, data, folder = "<model bytes>", bytes(model), None
     else:
@@ -88,7 +88,8 @@ def check_external_data(model: str | os.PathLike | bytes) -> list[Path]:
         # (1.20 then reads whatever that is; 1.32 also wants it inside A). So the data is
         # looked up beside the given path and must resolve into both folders: the same
         # models load on every version.
-        source, data, folder = str(path), path.read_bytes(), path.parent.resolve()
+        source, folder = str(path), path.parent.resolve()
+        data = path.read_bytes() if data is None else data
         target_folder = path.resolve().parent
     try:
         locations = external_locations(data)

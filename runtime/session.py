@@ -90,8 +90,9 @@ def checked_model(model: ModelSource) -> tuple[str, str | bytes]:
         check_custom_nodes(payload, source)
         return source, payload
     path = resolve_model(model)
-    check_external_data(path)  # every external data file inside the model's folder
-    check_custom_nodes(path.read_bytes(), str(path))  # attributes vs shapes
+    data = path.read_bytes()  # read once for both checks
+    check_external_data(path, data)  # every external data file inside the model's folder
+    check_custom_nodes(data, str(path))  # attributes vs shapes
     return str(path), str(path)
 
 
