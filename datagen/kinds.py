@@ -140,8 +140,14 @@ def _ground(rng: np.random.Generator, hf: float = 0.0) -> dict:
 def _place(rng, placed: list, r: float, lo, hi) -> tuple[float, float]:
     """A floor position (x, z) in [lo, hi] (2-D) not overlapping earlier ones (best effort)."""
     x = z = 0.0
+    # A range narrower than the prop (a wide pool leaves little floor beside it) pins that
+    # axis to the range's middle rather than asking numpy for an empty interval.
+    (x_lo, x_hi), (z_lo, z_hi) = (
+        (a + r, b - r) if b - a >= 2 * r else ((a + b) / 2,) * 2
+        for a, b in zip(lo, hi, strict=True)
+    )
     for _ in range(100):
-        x, z = rng.uniform(lo[0] + r, hi[0] - r), rng.uniform(lo[1] + r, hi[1] - r)
+        x, z = rng.uniform(x_lo, x_hi), rng.uniform(z_lo, z_hi)
         if all((x - px) ** 2 + (z - pz) ** 2 > (r + pr + 0.05) ** 2 for px, pz, pr in placed):
             break
     placed.append((float(x), float(z), r))

@@ -267,3 +267,27 @@ def test_cli_renders_tiny_sequence(tmp_path):
     assert r.exit_code == 0 and "skipping 1 complete" in r.output
     assert runner.invoke(app, [str(tmp_path), "--size", "24by20"]).exit_code == 2
     assert runner.invoke(app, [str(tmp_path), "--variant", "cuda_rgb"]).exit_code == 2
+
+
+@needs_mitsuba
+def test_cuda_variant_falls_back_in_order(monkeypatch):
+    """No usable CUDA: cuda_ad_rgb falls to llvm_ad_rgb, and with no LLVM 19 to scalar_rgb,
+    each fall named; the variant set is the one returned."""
+    import mitsuba as mi
+
+    from rtdenoise.datagen import variant
+
+    probed = []
+
+    def refuse(name, env=None, timeout=120.0):
+        probed.append(name)
+        return False, "no CUDA driver"
+
+    monkeypatch.setattr(variant, "probe_variant", refuse)
+    monkeypatch.setattr(variant, "find_libllvm19", lambda: None)
+    warnings: list[str] = []
+    assert variant.select_variant("cuda_ad_rgb", warn=warnings.append) == "scalar_rgb"
+    assert probed == ["cuda_ad_rgb"]
+    assert "cuda_ad_rgb failed (no CUDA driver)" in warnings[0]
+    assert "llvm_ad_rgb needs LLVM 19" in warnings[1]
+    assert mi.variant() == "scalar_rgb"
