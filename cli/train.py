@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shlex
 import sys
@@ -43,6 +44,38 @@ class Schedule(str, Enum):
     constant = "constant"
     onecycle = "onecycle"
     cosine = "cosine"
+    step = "step"
+
+
+class Recipe(str, Enum):
+    """models.recipes.RECIPE_NAMES."""
+
+    default = "default"
+    paper = "paper"
+    oidn = "oidn"
+
+
+# TrainSettings field filled by a recipe -> the option that sets it here
+_RECIPE_OPTIONS = {
+    "lr": "lr",
+    "batch": "batch",
+    "crop": "crop",
+    "flips": "flips",
+    "rotations": "rotations",
+    "brightness": "brightness",
+    "sample_counts": "samples",
+    "schedule": "schedule",
+    "temporal_weight": "temporal_weight",
+    "loss": "loss",
+    "permute": "permute_channels",
+    "exposure": "exposure",
+}
+
+
+def _given(ctx: typer.Context, option: str) -> bool:
+    """Whether `option` was set on the command line (or by an environment variable)."""
+    source = ctx.get_parameter_source(option)
+    return source is not None and source.name not in ("DEFAULT", "DEFAULT_MAP")
 
 
 class Exposure(str, Enum):
@@ -87,6 +120,7 @@ def _parse_range(text: str) -> tuple[float, float]:
 
 @app.command()
 def train_command(
+    ctx: typer.Context,
     sequences: Annotated[
         list[Path],
         typer.Argument(metavar="SEQ_DIR", help="Training sequence folders (canonical layout)."),
@@ -182,7 +216,8 @@ def train_command(
         Schedule,
         typer.Option(
             help="Learning rate over --steps: constant --lr; onecycle (lr/25 -> --lr over "
-            "--warmup, cosine down to lr/25/1e4); cosine (linear warm-up, cosine decay)."
+            "--warmup, cosine down to lr/25/1e4); cosine (linear warm-up, cosine decay); step "
+            "(x 0.75 after every fifth of --steps, Isik21)."
         ),
     ] = Schedule.constant,
     warmup: Annotated[
@@ -216,6 +251,17 @@ def train_command(
     log_every: Annotated[
         int, typer.Option(min=1, help="Steps per line of progress and loss history entry.")
     ] = 50,
+    recipe: Annotated[
+        Recipe,
+        typer.Option(
+            help="Settings to start from: default (the options' defaults, how the demos were "
+            "trained); paper (the family's own paper recipe: its loss, learning rate and "
+            "schedule, batch, crop and augmentation; Fan21's input clip and SMAPE eps for wskp; "
+            "not crossreg, which learns online); oidn (Open Image Denoise's: l1-ms-ssim, "
+            "onecycle, rotations, channel permutation, auto exposure, batch 16). Options given "
+            "explicitly override the recipe's; the checkpoint meta records it."
+        ),
+    ] = Recipe.default,
     version: VersionOption = False,
 ) -> None:
     """Train a denoiser on sequences in the canonical EXR layout and write a checkpoint.
@@ -241,9 +287,21 @@ def train_command(
     brightness_range = _parse_range(brightness)
     sample_counts = _parse_counts(samples) if samples else ()
     with user_errors(extra="train"):
+        from rtdenoise.models.recipes import recipe_settings
         from rtdenoise.models.train import TrainSettings, train
 
         load_family_modules(family_module)
+        try:
+            recipe_values, recipe_config = recipe_settings(recipe.value, family)
+        except ValueError as exc:
+            fail(str(exc))
+        if recipe_config:
+            model_config = recipe_config | (model_config or {})
+        overrides = {
+            field: value
+            for field, value in recipe_values.items()
+            if not _given(ctx, _RECIPE_OPTIONS[field])
+        }
         settings = TrainSettings(
             steps=steps,
             crop=crop,
@@ -268,7 +326,9 @@ def train_command(
             cache=str(cache) if cache is not None else None,
             log_every=log_every,
             workers=workers,
+            recipe=recipe.value,
         )
+        settings = dataclasses.replace(settings, **overrides)
         result = train(
             sequences,
             output,

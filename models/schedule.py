@@ -6,6 +6,8 @@
   steps, then cosine annealing down to lr / 25 / 1e4 at the last step; momentum is not cycled.
 - `cosine`: linear warm-up from lr / 25 to lr over the `warmup` fraction, then a cosine decay
   to lr / 25 / 1e4 at the last step (Loshchilov & Hutter 2017, SGDR, a single cycle).
+- `step`: lr x 0.75 after every fifth of the steps (Isik21 s.5: x 0.75 every 150 of about 750
+  epochs), no warm-up.
 
 A schedule's state (torch's `state_dict`) goes into the training checkpoint and is restored on
 resume, so a resumed run follows the same learning rates as an uninterrupted one; its settings
@@ -18,7 +20,9 @@ import math
 
 import torch
 
-SCHEDULES = ("constant", "onecycle", "cosine")
+SCHEDULES = ("constant", "onecycle", "cosine", "step")
+STEP_FACTOR = 0.75  # Isik21: x 0.75 ...
+STEP_PERIODS = 5  # ... every 150 of 750 epochs
 DIV_FACTOR = 25.0  # initial lr = lr / 25 (torch's OneCycleLR default)
 FINAL_DIV_FACTOR = 1e4  # final lr = initial lr / 1e4
 
@@ -32,6 +36,12 @@ def cosine_factor(step: int, total: int, warmup: float) -> float:
         return start + (1.0 - start) * step / ramp
     t = min(1.0, (step - ramp) / max(1, total - 1 - ramp))
     return end + (1.0 - end) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
+def step_factor(step: int, total: int) -> float:
+    """lr multiplier of the `step` schedule before optimisation step `step` (0-based)."""
+    period = max(1, round(total / STEP_PERIODS))
+    return STEP_FACTOR ** (step // period)
 
 
 def build_scheduler(
@@ -59,6 +69,8 @@ def build_scheduler(
             cycle_momentum=False,
         )
     total = int(total_steps)
+    if kind == "step":
+        return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda step: step_factor(step, total))
     return torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: cosine_factor(step, total, warmup)
     )
@@ -88,4 +100,5 @@ __all__ = [
     "check_resumable",
     "cosine_factor",
     "schedule_settings",
+    "step_factor",
 ]

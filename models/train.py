@@ -63,11 +63,12 @@ class TrainSettings:
     rotations: bool = False  # random quarter turns (models.augment)
     permute: bool = False  # random permutation of the colour channels (models.augment)
     exposure: str = "none"  # none or auto (models.data)
-    schedule: str = "constant"  # models.schedule.SCHEDULES: constant, onecycle, cosine
+    schedule: str = "constant"  # models.schedule.SCHEDULES: constant, onecycle, cosine, step
     warmup: float = 0.15  # warm-up fraction of the steps of onecycle / cosine
     cache: str | None = None  # folder of the memory-mapped sequence cache (models.cache)
     stop_at: int | None = None  # end this call after this step (the schedule spans `steps`)
     workers: int = 0  # >= 1: batch k from stream (seed, k), drawn by worker processes
+    recipe: str = "default"  # models.recipes: the settings this run started from
 
 
 @dataclass

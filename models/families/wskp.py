@@ -27,7 +27,11 @@ Choices the paper leaves open (all in `WSKPConfig`, stored in checkpoints):
 - TA: `models.temporal.TemporalConfig` (relative depth tolerance 0.1, normal dot > 0.9,
   min_alpha 0.2); state `ta` (r_TA and history length) and `geometry` (normal, depth).
 - The network sees the accumulated colour r_TA * (albedo + eps), gamma-compressed with
-  exponent 1 / `gamma` (2.2); the filter runs on HDR r_TA (no gamma).
+  exponent 1 / `gamma` (2.2); the filter runs on HDR r_TA (no gamma). Fan21's official code
+  also clips it to [0, 1] first (`clamp(x, 0, 1) ** 0.4545`): `input_clip` = True (the paper
+  recipe, `denoise-train --recipe paper`); off by default, as the demo was trained.
+- Loss: SMAPE (eps `smape_eps`, 1e-3 as Lee24's; the official code's is 1e-2, the paper
+  recipe's) + temporal_weight x temporal SMAPE (0 in the paper recipe, as in Fan21).
 - Block layout: the first block maps 10 -> width (no identity), blocks 2 .. layers - 1 are
   width -> width with identity, the last maps width -> 2 S (no identity) with no
   activation after it. Width 14, 6 layers (Fan21 "Ours (6-layer)"). `layers` = 3 is the
@@ -67,6 +71,7 @@ from ..accumulation import (
 )
 from ..base import DenoiserModel, register_family
 from ..features import depth01
+from ..losses import sequence_loss
 from ..ops.kernel_fusion import kernel_fusion
 from ..ops.weight_sharing_filter import weight_sharing_filter
 from ..repvgg import RepVGGBlock
@@ -90,6 +95,8 @@ class WSKPConfig(AccumulatingConfig):
     gamma: float = 2.2
     logit_clamp: float = 20.0
     depth_scale: str = "log"  # "log" or "linear"
+    input_clip: bool = False  # Fan21 official: clamp(x, 0, 1) before the gamma
+    smape_eps: float = 1e-3  # Fan21 official: 1e-2
 
     def validate(self) -> None:
         if self.width < 1:
@@ -103,6 +110,8 @@ class WSKPConfig(AccumulatingConfig):
             raise self.fail(f"logit_clamp must be > 0, got {self.logit_clamp}")
         if self.gamma <= 0:
             raise self.fail(f"gamma must be > 0, got {self.gamma}")
+        if self.smape_eps <= 0:
+            raise self.fail(f"smape_eps must be > 0, got {self.smape_eps}")
         if self.depth_scale not in ("log", "linear"):
             raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
 
@@ -154,7 +163,10 @@ class WSKP(DenoiserModel):
         r_ta = frame.accumulated
 
         # 3. Network input (10 ch): gamma-compressed accumulated colour and the features.
-        radiance = torch.pow(torch.clamp(r_ta * frame.modulation, min=0.0), 1.0 / self.cfg.gamma)
+        colour = r_ta * frame.modulation
+        top = 1.0 if self.cfg.input_clip else None  # Fan21 official code: clamp(x, 0, 1)
+        colour = torch.clamp(colour, min=0.0, max=top)
+        radiance = torch.pow(colour, 1.0 / self.cfg.gamma)
         normal01 = 0.5 * (frame.normal + 1.0)
         depth_01 = depth01(frame.depth, self.cfg.depth_scale)
         net_in = torch.cat((radiance, frame.albedo, normal01, depth_01), dim=1)
@@ -173,6 +185,13 @@ class WSKP(DenoiserModel):
 
         # 7. Remodulation.
         return fused * frame.modulation, frame.state
+
+    def loss(
+        self, outputs: torch.Tensor, reference: torch.Tensor, temporal_weight: float
+    ) -> torch.Tensor:
+        """SMAPE with eps `smape_eps` + temporal_weight x temporal SMAPE (Fan21's official loss
+        is the SMAPE alone, eps 1e-2: the paper recipe)."""
+        return sequence_loss(outputs, reference, temporal_weight, eps=self.cfg.smape_eps)
 
 
 __all__ = ["INPUT_CHANNELS", "WSKP", "ImportanceNet", "WSKPConfig"]
