@@ -194,7 +194,8 @@ def compare_command(
     pixel; models carry their state (one per size), OIDN is per frame. The sizes warm up
     smallest first; one that would not fit in memory (from the growth of the previous size)
     is left out, with a warning, before its first frame.
-    Quality: PSNR (tau-mapped, pooled), SSIM and TRMAE on sequences with references.
+    Quality: PSNR (tau-mapped, pooled), SSIM, SMAPE, relMSE (eps 0.01) and TRMAE on sequences
+    with references, per sequence in the JSON, their means in the table.
     """
     import platform
 
@@ -260,6 +261,12 @@ def compare_command(
             _plot(plot, result, [720, 1280] if [720, 1280] in timed else timed[-1])
 
 
+def _scores(m: dict[str, float]) -> list[str]:
+    """The quality columns of one row (PSNR, SSIM, SMAPE, relMSE, TRMAE)."""
+    digits = {"psnr": 2, "ssim": 4, "smape": 4, "relmse": 4, "trmae": 4}
+    return [_fmt(m[k], d) for k, d in digits.items()]
+
+
 def _print(result: dict[str, Any]) -> None:
     """Two tables: ms per frame (median, min-max) per size; ns per pixel and quality."""
     sizes = [f"{w}x{h}" for h, w in (row["size"] for row in result["speed"])]
@@ -270,7 +277,7 @@ def _print(result: dict[str, Any]) -> None:
     for label in sizes:
         times.add_column(label, justify="right")
         per_px.add_column(label, justify="right")
-    for label in ("PSNR dB", "SSIM", "TRMAE"):
+    for label in ("PSNR dB", "SSIM", "SMAPE", "relMSE", "TRMAE"):
         per_px.add_column(label, justify="right")
     for name, q in result["quality"].items():
         rows = [row["summary"][name] for row in result["speed"]]
@@ -282,17 +289,13 @@ def _print(result: dict[str, Any]) -> None:
         per_px.add_row(
             name,
             *(_fmt(s["ns_per_pixel"], 0) for s in rows),
-            _fmt(m["psnr"], 2),
-            _fmt(m["ssim"], 4),
-            _fmt(m["trmae"], 4),
+            *_scores(m),
         )
     n = result["noisy"]["mean"]
     per_px.add_row(
         "noisy input",
         *[""] * len(sizes),
-        _fmt(n["psnr"], 2),
-        _fmt(n["ssim"], 4),
-        _fmt(n["trmae"], 4),
+        *_scores(n),
     )
     console.print(times)
     console.print(per_px)

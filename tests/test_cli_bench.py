@@ -101,6 +101,13 @@ def test_compare_models_and_oidn_at_a_tiny_size(tmp_path, monkeypatch):
     )
     for name in names:
         assert q[name]["mean"]["psnr"] > data["noisy"]["mean"]["psnr"] + 6.0
+        # every score per sequence and as the mean; SMAPE and relMSE below the input's
+        (per_seq,) = q[name]["sequences"].values()
+        assert set(per_seq) == set(q[name]["mean"]) == {"psnr", "ssim", "smape", "relmse", "trmae"}
+        assert q[name]["mean"]["smape"] < data["noisy"]["mean"]["smape"]
+        assert q[name]["mean"]["relmse"] < data["noisy"]["mean"]["relmse"]
+    for column in ("SMAPE", "relMSE", "TRMAE"):
+        assert column in res.stdout
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(made) == 4 and all(d.shared_arena for d in made)  # 2 paths x 2 sizes
     # not a terminal: the progress as plain lines on stderr, not lost with rich's status line

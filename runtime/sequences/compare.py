@@ -326,12 +326,17 @@ def speed(
     return rows, skipped
 
 
+# the scores of `quality`, each per sequence and as a mean over the sequences
+SCORES = ("psnr", "ssim", "smape", "relmse", "trmae")
+
+
 def quality(
     contenders: Sequence[Contender],
     sequences: Sequence[tuple],
     progress: Callable[[str], None] = lambda _msg: None,
 ) -> dict[str, dict[str, Any]]:
-    """Per contender: PSNR, SSIM, TRMAE per sequence (frames with state) and their means.
+    """Per contender: the SCORES (PSNR pooled, SSIM, SMAPE and relMSE averaged over the frames,
+    TRMAE over the sequence) per sequence (frames with state) and their means.
     sequences: (name, frames, references) or (name, frames, references, cuts), cuts the
     indices of the frames that start a new shot (the contender's `cut` runs before them)."""
     out: dict[str, dict[str, Any]] = {}
@@ -347,12 +352,11 @@ def quality(
                     (c.cut or c.reset)()
                 metrics.add(np.asarray(c.denoise(c.prepare(frame)), np.float32), ref)
             s = metrics.summary()
-            per_seq[name] = {k: s[k] for k in ("psnr", "ssim", "trmae")}
+            per_seq[name] = {k: s[k] for k in SCORES}
         out[c.name] = {
             "sequences": per_seq,
             "mean": {
-                k: float(np.mean([v[k] for v in per_seq.values()]))
-                for k in ("psnr", "ssim", "trmae")
+                k: float(np.mean([v[k] for v in per_seq.values()])) for k in SCORES
             },
         }
     return out
