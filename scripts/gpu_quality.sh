@@ -13,14 +13,15 @@
 #
 # `run` renders for RENDER_S seconds (RENDER_PROCS processes, one --shard each, base seed 10000,
 # the held-out kinds excluded: the same clips as scripts/build_training_set.sh, so a render here
-# and there make one set), then trains each family of FAMILIES at its OIDN-fast-budget size
+# and there make one set), then trains each of CANDIDATES (afn also with Lee24's fusion network)
+# at its family's OIDN-fast-budget size
 # (benchmarks/capacity_budget.py) with the OIDN-like recipe for STEPS steps, all at once on the
 # one GPU, validating on the committed validation set. $OUT gets the checkpoints (their meta
 # holds the training command), render.json (clips, seconds, clips per minute, the render command)
 # and logs.tar.gz. Here, afterwards: denoise-export each and
 # `denoise-bench compare` them on validation/ beside OIDN (benchmarks/README.md).
 #
-# `DEVICE=cpu VARIANT=llvm_ad_rgb INSTALL=0 RENDER_S=60 STEPS=4 SIZE=32x32 scripts/gpu_quality.sh run`
+# `DEVICE=cpu VARIANT=llvm_ad_rgb INSTALL=0 RENDER_S=60 STEPS=4 SIZE=32x32 CANDIDATES=nbg scripts/gpu_quality.sh run`
 # runs the same steps in this machine's environment: a check of the script, not of a GPU.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,16 +32,17 @@ RENDER_PROCS=${RENDER_PROCS:-8} # render processes sharing the GPU (one --shard 
 STEPS=${STEPS:-3000}            # training steps per family
 TRAIN_S=${TRAIN_S:-300}         # a training run still going then is stopped (its last save kept)
 SIZE=${SIZE:-128x128}
-FAMILIES=${FAMILIES:-afn nbg wskp}
+CANDIDATES=${CANDIDATES:-afn afn_fusion nbg wskp} # a candidate is FAMILY or FAMILY_VARIANT
 DATA=${DATA:-/tmp/rtdenoise-train}
 CARRY=.device_quality
 WHEEL_ARGS=(--no-deps --only-binary=:all: --python-version 3.12 --implementation cp
     --platform manylinux_2_28_x86_64 --platform manylinux_2_27_x86_64
     --platform manylinux_2_17_x86_64 --platform manylinux2014_x86_64)
 
-config_of() { # the OIDN-fast-budget size of a family (benchmarks/README.md, capacity budget)
+config_of() { # a candidate's config: its family's OIDN-fast-budget size (benchmarks/README.md)
     case "$1" in
     afn) echo '{"widths": [32, 24, 32, 48, 64]}' ;;
+    afn_fusion) echo '{"widths": [32, 24, 32, 48, 64], "fusion": "network"}' ;; # Lee24 Fig. 2c
     nbg) echo '{"hidden": 64}' ;;
     wskp) echo '{"width": 32, "layers": 3}' ;;
     *) echo '{}' ;;
@@ -88,21 +90,21 @@ print(json.dumps(report))
 EOF
 }
 
-train() { # every family of FAMILIES at once on the one device
-    local seqs=() val=() pids=() fam
+train() { # every candidate of CANDIDATES at once on the one device
+    local seqs=() val=() pids=() name
     for d in "$DATA"/seq_*/; do [ -f "$d/meta.json" ] && seqs+=("$d"); done
     for d in validation/seq_*/; do [ -f "$d/meta.json" ] && val+=(--val "$d"); done
     if [ "${#seqs[@]}" -lt 2 ]; then
         echo "only ${#seqs[@]} complete clips in $DATA: nothing to train on" >&2
         return 1
     fi
-    for fam in $FAMILIES; do
-        timeout "$TRAIN_S" denoise-train "${seqs[@]}" "${val[@]}" -o "$OUT/$fam.pt" \
-            --family "$fam" --config "$(config_of "$fam")" --device "$DEVICE" --steps "$STEPS" \
+    for name in $CANDIDATES; do
+        timeout "$TRAIN_S" denoise-train "${seqs[@]}" "${val[@]}" -o "$OUT/$name.pt" \
+            --family "${name%%_*}" --config "$(config_of "$name")" --device "$DEVICE" --steps "$STEPS" \
             --loss l1-ms-ssim --schedule onecycle --rotations --permute-channels \
             --exposure auto --crop "${SIZE%%x*}" --frames 8 --batch 16 --workers 4 \
-            --cache "$DATA/cache_$fam" --save-every 250 --log-every 100 --no-progress \
-            >"$LOGS/train_$fam.log" 2>&1 &
+            --cache "$DATA/cache_$name" --save-every 250 --log-every 100 --no-progress \
+            >"$LOGS/train_$name.log" 2>&1 &
         pids+=($!)
     done
     local rc=0

@@ -174,3 +174,30 @@ def test_exports_to_onnx_with_custom_nodes_and_dynamic_size(model: AFN):
     for h, w in ((32, 40), (24, 16)):
         report = validate(model, data, synthetic_frames(model.inputs, 3, h, w))
         assert report.passed and report.max_error < 1e-5, report.errors
+
+
+def test_fusion_network_sees_the_filtered_images_and_exports():
+    """fusion="network" (Lee24 Fig. 2c): alpha from a CNN over d_TA, U D d_TA, U d_1spp and the
+    features, not from the predictor's head; it trains (gradients reach it) and exports, ORT
+    (fast and portable) following PyTorch over moving frames with state."""
+    from rtdenoise.export.onnx_export import export_model
+    from rtdenoise.export.validate import synthetic_frames, validate
+
+    torch.manual_seed(0)
+    net = build_model("afn", {**SMALL, "fusion": "network", "fusion_width": 6})
+    assert net.predictor.head_ta.out_channels == 25 and net.fusion is not None
+    assert build_model("afn", SMALL).fusion is None  # the default keeps the head's alpha
+    # alpha follows the filtered images: the same features, different d_1spp, different alpha
+    d_ta, features = torch.rand(1, 3, 16, 16), torch.rand(1, 7, 16, 16)
+    with torch.no_grad():
+        a1 = net.fusion(d_ta, torch.rand(1, 3, 8, 8), features)
+        a2 = net.fusion(d_ta, torch.rand(1, 3, 8, 8) * 5.0, features)
+    assert a1.shape == (1, 1, 16, 16) and not torch.allclose(a1, a2)
+    assert float(a1.min()) > 0.0 and float(a1.max()) < 1.0
+    out, _ = net(_buffers(), net.initial_state(N, H, W), torch.tensor(1.0))
+    out.mean().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in net.fusion.parameters())
+    net = net.eval().requires_grad_(False)
+    data = export_model(net).SerializeToString()
+    report = validate(net, data, synthetic_frames(net.inputs, 3, 32, 24))
+    assert report.passed and report.max_error < 1e-5, report.errors

@@ -9,12 +9,14 @@
 3. network input (III-A): tonemapped r_1spp and r_TA, albedo, normal in [0, 1], depth scaled
    to [0, 1] per frame (+ the TA blend weight, see below);
 4. multi-scale kernel prediction M (III-B, eq. (1)): a light U-Net autoencoder; K_1spp (k x k
-   taps, softmax) is sliced from the 1/2-scale decoder feature, K_TA (softmax) and the fusion
-   weight alpha (sigmoid) from the full-scale one;
+   taps, softmax) is sliced from the 1/2-scale decoder feature, K_TA (softmax) from the
+   full-scale one (with `fusion` = "head" also the fusion weight alpha, a sigmoid channel);
 5. filtering (III-C, eq. (2)) on HDR values: d_1spp = KernelApply(D r_1spp, K_1spp) at half
    resolution, d_TA = KernelApply(r_TA, K_TA) at full resolution, each as one
    SoftmaxKernelApply op that takes the kernel's logits (the softmax happens inside it);
-6. adaptive fusion (eq. (3)): i = d_TA - alpha U D d_TA + alpha U d_1spp;
+6. adaptive fusion (eq. (3)): i = d_TA - alpha U D d_TA + alpha U d_1spp; with `fusion` =
+   "network" alpha comes from the fusion module F of Fig. 2 (c), a small CNN that sees the
+   filtered images (Vogels18's scale compositor: `FusionNet`);
 7. refinement (eq. (4)): o = i + R(i, f), a small conv net;
 8. remodulate: output = o * (albedo + albedo_eps).
 
@@ -51,6 +53,12 @@ Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
   image can be slightly negative: eq. (3) is an unsharp-mask-like difference). Small because
   it earned nothing in our training: the former demo (width 16, 3 layers, 7.7 GFLOP) scored
   27.23 dB on the committed sequences with its residual set to zero, 27.20 dB with it.
+- `fusion`: "head" (default, as demo:afn was trained): alpha is a sigmoid channel of the
+  kernel predictor's full-scale head, blind to the filtered images; "network": Lee24 Fig. 2
+  (c), alpha = FusionNet(log1p d_TA, log1p U D d_TA, log1p U d_1spp, features), two 3 x 3
+  convs of `fusion_width` (8) channels, ReLU, sigmoid: it sees where d_1spp and d_TA disagree
+  (a moving light, a disocclusion). The figure's layer sizes are not in the text: these are
+  the smallest that see a 5 x 5 neighbourhood; 1.2 k multiply-adds per pixel.
 - H and W must be multiples of `pad_multiple` = 2 ** (len(widths) - 1).
 
 Cost (FLOP = 2 x multiply-adds of the Conv layers, `benchmarks/flops.py`): the defaults take
@@ -96,6 +104,8 @@ class AFNConfig(AccumulatingConfig):
     history_input: bool = True
     full_res_convs: int = 1  # convs in the full-scale encoder and decoder blocks
     full_res_decoder_kernel: int = 1  # their kernel size in the decoder block
+    fusion: str = "head"  # where alpha comes from: "head" (predictor) or "network" (Fig. 2c)
+    fusion_width: int = 8  # FusionNet's hidden channels
 
     @classmethod
     def from_dict(cls, data: dict | None) -> AFNConfig:
@@ -123,6 +133,10 @@ class AFNConfig(AccumulatingConfig):
             raise self.fail(f"refine_layers must be >= 1, got {self.refine_layers}")
         if self.depth_scale not in ("log", "linear"):
             raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
+        if self.fusion not in ("head", "network"):
+            raise self.fail(f"fusion must be 'head' or 'network', got {self.fusion!r}")
+        if self.fusion_width < 1:
+            raise self.fail(f"fusion_width must be >= 1, got {self.fusion_width}")
 
 
 # The AFNConfig keys of every checkpoint saved before the full-scale options were added, and
@@ -155,7 +169,8 @@ class KernelPredictor(nn.Module):
     """Lee24 eq. (1): M(r_1spp, r_TA, f) -> K_1spp (1/2 scale), K_TA and alpha (full scale).
 
     The kernels are returned as logits: their softmax over the k*k taps is taken inside the
-    filter op (`softmax_kernel_apply`), so the normalised kernels are never stored."""
+    filter op (`softmax_kernel_apply`), so the normalised kernels are never stored. Without
+    `alpha_head` (alpha from `FusionNet`) the third output is None."""
 
     def __init__(
         self,
@@ -164,6 +179,7 @@ class KernelPredictor(nn.Module):
         kernel_size: int,
         full_res_convs: int = 2,
         full_res_decoder_kernel: int = 3,
+        alpha_head: bool = True,
     ) -> None:
         super().__init__()
         taps = kernel_size * kernel_size
@@ -184,10 +200,11 @@ class KernelPredictor(nn.Module):
             for level in range(len(widths) - 1)
         )
         self.head_1spp = nn.Conv2d(widths[1], taps, 1)
-        self.head_ta = nn.Conv2d(widths[0], taps + 1, 1)
+        self.head_ta = nn.Conv2d(widths[0], taps + int(alpha_head), 1)
         self.taps = taps
+        self.alpha_head = alpha_head
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         skips = []
         for level, encoder in enumerate(self.encoders):
             if level > 0:
@@ -202,8 +219,32 @@ class KernelPredictor(nn.Module):
         half, full = features[-2], features[-1]
         logits_1spp = self.head_1spp(half)
         head = self.head_ta(full)
+        if not self.alpha_head:
+            return logits_1spp, head, None
         alpha = torch.sigmoid(head[:, self.taps :])
         return logits_1spp, head[:, : self.taps], alpha
+
+
+class FusionNet(nn.Module):
+    """Lee24 Fig. 2 (c), the fusion module F's weight: alpha from the filtered images (a
+    Vogels18 scale compositor), log1p-tonemapped, and the features."""
+
+    def __init__(self, feature_channels: int, width: int) -> None:
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Conv2d(9 + feature_channels, width, 3, padding=1),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(width, 1, 3, padding=1),
+        )
+
+    def forward(
+        self, d_ta: torch.Tensor, d_1spp: torch.Tensor, features: torch.Tensor
+    ) -> torch.Tensor:
+        coarse_ta = F.interpolate(F.avg_pool2d(d_ta, 2), scale_factor=2.0, mode="nearest")  # U D
+        up_1spp = F.interpolate(d_1spp, scale_factor=2.0, mode="nearest")  # U
+        images = torch.cat((d_ta, coarse_ta, up_1spp), dim=1)
+        x = torch.cat((torch.log1p(torch.clamp(images, min=0.0)), features), dim=1)
+        return torch.sigmoid(self.net(x))
 
 
 class Refinement(nn.Module):
@@ -250,7 +291,9 @@ class AFN(DenoiserModel):
             config.kernel_size,
             config.full_res_convs,
             config.full_res_decoder_kernel,
+            alpha_head=config.fusion == "head",
         )
+        self.fusion = FusionNet(7, config.fusion_width) if config.fusion == "network" else None
         self.refine = Refinement(7 + 3, config.refine_width, config.refine_layers)
 
     def forward(
@@ -278,7 +321,9 @@ class AFN(DenoiserModel):
         d_1spp = softmax_kernel_apply(F.avg_pool2d(r_1spp, 2), logits_1spp)
         d_ta = softmax_kernel_apply(r_ta, logits_ta)
 
-        # 6. Adaptive fusion, Lee24 eq. (3).
+        # 6. Adaptive fusion, Lee24 eq. (3), alpha from the fusion module F (Fig. 2c) or the head.
+        if self.fusion is not None:
+            alpha = self.fusion(d_ta, d_1spp, features)
         fused = adaptive_fusion(d_ta, d_1spp, alpha)
 
         # 7. Refinement, Lee24 eq. (4), residual in the log1p domain (output >= 0).
@@ -293,6 +338,7 @@ class AFN(DenoiserModel):
 __all__ = [
     "AFN",
     "AFNConfig",
+    "FusionNet",
     "LEGACY_CONFIG",
     "KernelPredictor",
     "Refinement",
