@@ -3,8 +3,9 @@ re-parameterisation into one convolution.
 
 Training form: parallel k x k convolutions (Fan21: 5 x 5, 3 x 3, 1 x 1) plus an identity
 branch where in == out channels, each optionally followed by BatchNorm2d, summed. The
-activation is NOT part of the block: the model applies it after the sum (Fan21 Fig. 1 puts
-the ReLU after the merged 5 x 5 conv; the folded conv must equal the branch sum alone).
+activation is NOT part of the block: the model applies it after the sum (Fan21 Fig. 1 draws a
+ReLU after the merged 5 x 5 conv, the official code and `models/families/wskp.py` use
+LeakyReLU 0.1; the folded conv must equal the branch sum alone).
 
 Deploy form (`RepVGGBlock.reparameterize`, called by `export.deploy.to_deploy`): one
 K x K conv, K = the largest kernel size, weight = sum of the branches' kernels zero-padded

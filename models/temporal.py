@@ -17,6 +17,13 @@ previous frame saw another surface (out of screen, depth or normal disagreement)
 with weight a = max(a_min, 1 / (history + 1)) so that the first frames average uniformly and
 later frames converge to an exponential moving average with weight a_min (0.2 = Meng20's
 history weight 0.8).
+
+One difference from SVGF and BMFR: the whole previous state (accumulation, depth, normal) is
+warped bilinearly first and the *interpolated* depth and normal are tested, once per pixel;
+those schemes test each of the four bilinear taps and renormalise the weights of the accepted
+ones, which keeps a silhouette's background taps out of a foreground pixel's history. Per-tap
+reprojection exists for crossreg (`models/reprojection.py`); docs/families/afn.md and wskp.md
+list it as a deviation (not measured).
 """
 
 from __future__ import annotations
