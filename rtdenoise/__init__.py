@@ -9,7 +9,7 @@ rtdenoise.runtime` finds `runtime/` in an uninstalled checkout, and from the che
 
 from pathlib import Path as _Path
 
-__version__ = "0.1.0"
+from ._version import __version__ as __version__
 
 SUBPACKAGES = ("ops", "models", "export", "runtime", "cli", "datagen")
 
