@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from .common import (
+    CONTEXT_SETTINGS,
     FamilyModuleOption,
     VersionOption,
     fail,
@@ -19,7 +20,7 @@ from .common import (
     user_errors,
 )
 
-app = typer.Typer(add_completion=False, no_args_is_help=True)
+app = typer.Typer(add_completion=False, no_args_is_help=True, context_settings=CONTEXT_SETTINGS)
 console = Console()
 
 

@@ -26,6 +26,7 @@ from rtdenoise.cli.cluster import (
     task_progress,
 )
 from rtdenoise.cli.common import (
+    CONTEXT_SETTINGS,
     VersionOption,
     one_line_warnings,
     quiet_native_output,
@@ -59,7 +60,7 @@ app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     rich_markup_mode="markdown",
-    context_settings={"help_option_names": ["-h", "--help"]},
+    context_settings=CONTEXT_SETTINGS,
 )
 
 

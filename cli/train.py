@@ -12,6 +12,7 @@ from typing import Annotated
 import typer
 
 from rtdenoise.cli.common import (
+    CONTEXT_SETTINGS,
     FamilyModuleOption,
     VersionOption,
     fail,
@@ -26,6 +27,7 @@ app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     rich_markup_mode="markdown",
+    context_settings=CONTEXT_SETTINGS,
 )
 
 
