@@ -28,19 +28,12 @@ import numpy as np
 
 from rtdenoise.runtime.contract import SAMPLES
 from rtdenoise.runtime.sequences.frames import shot_cuts
-from rtdenoise.runtime.sequences.layouts import Layout, get_layout
+from rtdenoise.runtime.sequences.layouts import Layout, get_layout, layout_fingerprint
 
 from .data import SequenceData, load_sequence
 
 CACHE_VERSION = 1
 _DONE = "sequence.json"
-
-
-def layout_fingerprint(layout: Layout) -> str:
-    """The layout's name and, for one read from a file, the sha256 of that file."""
-    if layout.path is None:
-        return layout.name
-    return f"{layout.name}:{hashlib.sha256(Path(layout.path).read_bytes()).hexdigest()}"
 
 
 def cache_key(
@@ -114,4 +107,4 @@ def cached_sequence(
     return _open(entry, folder, buffers)
 
 
-__all__ = ["CACHE_VERSION", "cache_key", "cached_sequence", "compact", "layout_fingerprint"]
+__all__ = ["CACHE_VERSION", "cache_key", "cached_sequence", "compact"]
