@@ -3,7 +3,10 @@ version that the package, its metadata and every command agree on."""
 
 from __future__ import annotations
 
+import ast
+import os
 import re
+import subprocess
 import sys
 from importlib import import_module, metadata
 from pathlib import Path
@@ -74,3 +77,54 @@ def test_changelog_has_an_entry_for_this_version():
     assert first is not None and first.group(1) == written_version
     for topic in ("afn", "wskp", "nbg", "affinity", "crossreg", "denoise-export", "MIT"):
         assert topic in text, topic
+
+
+CIBW = PYPROJECT["tool"]["cibuildwheel"]
+
+
+def test_cibuildwheel_builds_the_supported_platforms_with_every_extension():
+    assert CIBW["build"].split() == ["cp310-*", "cp311-*", "cp312-*", "cp313-*"]
+    assert CIBW["skip"] == "*-musllinux_*"  # onnxruntime publishes no musllinux wheels
+    assert CIBW["linux"]["archs"] == ["x86_64", "aarch64"]
+    assert CIBW["macos"]["archs"] == ["arm64"] and CIBW["windows"]["archs"] == ["AMD64"]
+    for where in (CIBW, CIBW["macos"]):
+        assert where["environment"]["RTDENOISE_REQUIRE_EXTENSIONS"] == "1"
+    assert "scripts/check_wheel.py" in CIBW["test-command"]
+    text = (ROOT / "pyproject.toml").read_text()
+    section = text[text.index("[tool.cibuildwheel]") : text.index("[tool.pytest.ini_options]")]
+    assert "_ort_bridge" not in section  # extensions come from setup.py, never listed here
+
+
+@pytest.mark.parametrize("required", ["1", None])
+def test_a_release_build_makes_every_extension_required(required):
+    """setup.py's Extensions as setup() receives them: none optional for a release."""
+    code = (
+        "import setuptools; "
+        "setuptools.setup = lambda **kw: print([e.optional for e in kw['ext_modules']]); "
+        "exec(compile(open('setup.py').read(), 'setup.py', 'exec'))"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "RTDENOISE_REQUIRE_EXTENSIONS"}
+    if required:
+        env["RTDENOISE_REQUIRE_EXTENSIONS"] = required
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr
+    optional = ast.literal_eval(proc.stdout.strip())  # a printed list of bools
+    assert optional and all(o is (required is None) for o in optional)
+
+
+def test_check_wheel_finds_every_extension_setup_py_declares(tmp_path):
+    sys.path.insert(0, str(ROOT / "scripts"))
+    try:
+        from check_wheel import declared_extensions
+    finally:
+        sys.path.remove(str(ROOT / "scripts"))
+    assert declared_extensions(ROOT / "setup.py") == ["rtdenoise.runtime.bridge._ort_bridge"]
+    other = tmp_path / "setup.py"  # a second one, however it is spelled
+    other.write_text(
+        "from setuptools import Extension\nimport setuptools\n"
+        "A = Extension('pkg.a', ['a.c'])\nB = setuptools.Extension(name='pkg.b', sources=[])\n"
+    )
+    assert declared_extensions(other) == ["pkg.a", "pkg.b"]
+
