@@ -128,3 +128,33 @@ def test_check_wheel_finds_every_extension_setup_py_declares(tmp_path):
     )
     assert declared_extensions(other) == ["pkg.a", "pkg.b"]
 
+
+README = (ROOT / "README.md").read_text()
+
+
+def test_readme_states_the_gpu_status():
+    line = next(p for p in README.split("\n\n") if p.startswith("**GPU: status"))
+    assert "Nothing in this project has run on a GPU yet" in line
+    assert "`--provider cuda`, `tensorrt`" in line and "never been run by" in line
+    assert "tests/test_gpu.py" in line and "have not yet run" in line
+    assert "OIDN" not in line  # the comparison table is measured elsewhere
+
+
+def test_readme_buffer_table_is_what_each_demo_reads():
+    """The caveats' table of buffers, row by row, against each shipped model's inputs."""
+    from rtdenoise.runtime import Denoiser
+    from rtdenoise.runtime.contract import BUFFER_CHANNELS, SAMPLES
+
+    known = set(BUFFER_CHANNELS) | {SAMPLES}
+    table = README[README.index("| model | buffers |") :].split("\n\n")[0].splitlines()[2:]
+    seen = set()
+    for row in table:
+        _, models, buffers, _ = row.split("|")
+        listed = set(re.findall(r"`(\w+)`", buffers)) & known
+        for family in re.findall(r"`(\w+)`", models):
+            seen.add(family)
+            needs = set(Denoiser(f"demo:{family}", fast_kernels=False).required_buffers)
+            assert needs <= listed, family
+            if SAMPLES not in needs:  # a per-sample model's row also names the features
+                assert listed == needs, family
+    assert seen == {"afn", "wskp", "nbg", "affinity", "crossreg"}
