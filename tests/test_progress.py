@@ -73,3 +73,20 @@ def test_denoise_run_reports_kernel_compilation_between_its_frames(tmp_path, mon
     assert lines[1].startswith("compiled fast kernel first_use in ")
     assert lines[2:] == [f"{seq}: frame 1/2", f"{seq}: frame 2/2"]
     assert other_lines(res.stderr) == []
+
+
+def test_cluster_tasks_report_as_they_end_where_stderr_is_no_terminal(capsys):
+    from rich.console import Console
+
+    from rtdenoise.cli.cluster import task_progress
+    from rtdenoise.runtime.sequences.cluster import TaskOutcome
+
+    err = Console(stderr=True, force_terminal=False)
+    with task_progress(err, {"a": 2, "b": 3}, "denoise") as (on_progress, on_done):
+        on_progress({"a": 1})
+        on_done(TaskOutcome("b", error="InputError: x"))
+        on_done(TaskOutcome("a", result={}))
+    assert capsys.readouterr().err.splitlines() == [
+        "denoise: b failed (1/2)",
+        "denoise: a done (2/2)",
+    ]
