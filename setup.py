@@ -8,7 +8,13 @@ The one compiled part is the native custom-op bridge (runtime/bridge/_ort_bridge
 file against ONNX Runtime's C ABI): optional, so that an install without a C compiler still
 works and runs the fast kernels through onnxruntime-extensions instead
 (runtime/bridge/native.py).
+
+A release wheel must carry every native part: with RTDENOISE_REQUIRE_EXTENSIONS=1 (set by
+[tool.cibuildwheel] and scripts/build_release_wheel.sh) no extension is optional, so a compile
+failure fails the build instead of shipping a wheel without it.
 """
+
+import os
 
 from setuptools import Extension, find_packages, setup
 
@@ -21,8 +27,18 @@ BRIDGE = Extension(
     optional=True,
 )
 
+
+
+def release_extensions(extensions: list[Extension]) -> list[Extension]:
+    """`extensions`, none optional when RTDENOISE_REQUIRE_EXTENSIONS=1 (a release build)."""
+    if os.environ.get("RTDENOISE_REQUIRE_EXTENSIONS") == "1":
+        for ext in extensions:
+            ext.optional = False
+    return extensions
+
+
 setup(
-    ext_modules=[BRIDGE],
+    ext_modules=release_extensions([BRIDGE]),
     package_dir=ROOTS,
     packages=[
         f"{package}.{sub}" if sub else package

@@ -13,6 +13,7 @@ from rich.table import Table
 from rtdenoise.runtime.memory import tune_allocator
 
 from .common import (
+    CONTEXT_SETTINGS,
     VersionOption,
     fail,
     one_line_warnings,
@@ -23,7 +24,7 @@ from .common import (
 )
 from .compare import compare_command
 
-app = typer.Typer(add_completion=False, no_args_is_help=True)
+app = typer.Typer(add_completion=False, no_args_is_help=True, context_settings=CONTEXT_SETTINGS)
 console = Console()
 
 LABELS = {

@@ -19,6 +19,7 @@ from rich.progress import (
 )
 
 from rtdenoise.cli.common import EXIT_BAD_INPUT, EXIT_FAILURE
+from rtdenoise.cli.progress import plain_line
 from rtdenoise.runtime.sequences.cluster import DEFAULT_RETRIES, TaskOutcome
 
 ClusterOption = Annotated[
@@ -55,7 +56,9 @@ RetriesOption = Annotated[
 def task_progress(
     err: Console, totals: Mapping[str, int], what: str
 ) -> Iterator[tuple[Callable[[Mapping[str, int]], None], Callable[[TaskOutcome], None]]]:
-    """One bar over the frames of all tasks: yields `run_tasks`' (on_progress, on_done)."""
+    """One bar over the frames of all tasks: yields `run_tasks`' (on_progress, on_done).
+    Where stderr is no terminal (rich shows nothing), a plain line as each task ends:
+    `denoise: seq_000 done (1/3)`, `denoise: seq_001 failed (2/3)`."""
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -87,6 +90,9 @@ def task_progress(
             ended[outcome.name] = outcome.ok
             frames[outcome.name] = totals[outcome.name]  # a failed one counts as finished
             progress.update(bar, completed=sum(frames.values()), description=describe())
+            if not err.is_terminal:
+                state = "done" if outcome.ok else "failed"
+                plain_line(f"{what}: {outcome.name} {state} ({len(ended)}/{len(totals)})")
 
         yield on_progress, on_done
 

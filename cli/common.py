@@ -21,6 +21,9 @@ from rtdenoise import __version__
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.sequences.atomic import write_text_atomic
 
+# Every command's Typer app: `-h` as well as `--help` (subcommands inherit it).
+CONTEXT_SETTINGS: dict[str, Any] = {"help_option_names": ["-h", "--help"]}
+
 EXIT_BAD_INPUT = 2
 EXIT_FAILURE = 1
 

@@ -10,6 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 from .common import (
+    CONTEXT_SETTINGS,
     FamilyModuleOption,
     VersionOption,
     fail,
@@ -19,7 +20,7 @@ from .common import (
     user_errors,
 )
 
-app = typer.Typer(add_completion=False, no_args_is_help=True)
+app = typer.Typer(add_completion=False, no_args_is_help=True, context_settings=CONTEXT_SETTINGS)
 console = Console()
 
 
@@ -35,6 +36,14 @@ def resolve_checkpoint(spec: str) -> Path:
     return path
 
 
+def check_output(output: Path, overwrite: bool) -> None:
+    """Exit 2 naming OUTPUT when it is a folder, or exists without --overwrite."""
+    if output.is_dir():
+        fail(f"{output}: is a folder; give the .onnx file to write")
+    if output.exists() and not overwrite:
+        fail(f"{output}: exists; --overwrite replaces it")
+
+
 @app.command()
 def export(
     checkpoint: Annotated[
@@ -48,6 +57,9 @@ def export(
     tolerance: Annotated[
         float, typer.Option(help="Max error |ort-torch|/(1+|torch|) accepted on any frame.")
     ] = 1e-4,
+    overwrite: Annotated[
+        bool, typer.Option("--overwrite", help="Replace OUTPUT if it exists (default: refuse).")
+    ] = False,
     family_module: FamilyModuleOption = None,
     version: VersionOption = False,
 ) -> None:
@@ -57,15 +69,15 @@ def export(
     `rtdenoise` domain, each shipped with a model-local function body so that any stock
     ONNX Runtime runs the file. RepVGG/BatchNorm branches are folded first. The file is
     written only if ONNX Runtime (fast kernels and portable path) matches PyTorch over a
-    multi-frame sequence with state fed back. Needs the export extra (torch, onnx).
+    multi-frame sequence with state fed back. An existing OUTPUT is replaced only with
+    --overwrite. Needs the export extra (torch, onnx).
     """
+    check_output(output, overwrite)  # before torch loads: a refusal costs nothing
     with user_errors(extra="export"):
         from rtdenoise.export.pipeline import export_checkpoint
 
         load_family_modules(family_module)
         ckpt = resolve_checkpoint(checkpoint)
-        if output.is_dir():
-            fail(f"{output}: is a folder; give the .onnx file to write")
         with console.status(f"exporting {ckpt.name} ..."):
             report = export_checkpoint(ckpt, output, frames=frames, size=size, tolerance=tolerance)
 

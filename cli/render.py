@@ -31,7 +31,13 @@ from .cluster import (
     report_failures,
     task_progress,
 )
-from .common import VersionOption, one_line_warnings, parse_size, user_errors
+from .common import (
+    CONTEXT_SETTINGS,
+    VersionOption,
+    one_line_warnings,
+    parse_size,
+    user_errors,
+)
 
 HELP = """Render N random animated scenes (Mitsuba 3 path tracer) into OUT_DIR/seq_XXX/,
 one folder per sequence, XXX = sequence index.
@@ -74,7 +80,7 @@ file system every node shares. A sequence that fails is named, the others finish
 and the exit code is non-zero.
 """
 
-app = typer.Typer(add_completion=False, rich_markup_mode=None)
+app = typer.Typer(add_completion=False, rich_markup_mode=None, context_settings=CONTEXT_SETTINGS)
 console = Console(stderr=True)
 
 

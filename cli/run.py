@@ -8,6 +8,7 @@ and the noisy input against references when there are any.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -26,6 +27,7 @@ from rtdenoise.cli.cluster import (
     task_progress,
 )
 from rtdenoise.cli.common import (
+    CONTEXT_SETTINGS,
     VersionOption,
     one_line_warnings,
     quiet_native_output,
@@ -33,6 +35,7 @@ from rtdenoise.cli.common import (
     warn,
     write_json,
 )
+from rtdenoise.cli.progress import kernel_compilation, plain_line
 from rtdenoise.runtime.errors import InputError
 from rtdenoise.runtime.memory import tune_allocator
 from rtdenoise.runtime.sequences.atomic import check_writable
@@ -59,7 +62,7 @@ app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     rich_markup_mode="markdown",
-    context_settings={"help_option_names": ["-h", "--help"]},
+    context_settings=CONTEXT_SETTINGS,
 )
 
 
@@ -82,7 +85,8 @@ def run_with_progress(
     resume: bool = False,
     max_pixels: int | None = None,
 ) -> dict[str, Any]:
-    """`run_sequence` with a progress bar on a terminal and warnings on stderr."""
+    """`run_sequence` with a progress bar on a terminal, else a plain line per frame on
+    stderr (`<sequence>: frame 3/8`), and warnings on stderr."""
     progress = Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -95,10 +99,15 @@ def run_with_progress(
     )
     with progress:
         task = progress.add_task(job.name, total=len(job.frames))
+        count = 0
 
         def advance() -> None:
+            nonlocal count
             progress.advance(task)
             progress.refresh()
+            count += 1
+            if not err.is_terminal:  # rich shows nothing there: a log still sees progress
+                plain_line(f"{job.name}: frame {count}/{len(job.frames)}")
 
         return run_sequence(
             job,
@@ -454,43 +463,55 @@ def run(
             if code:
                 raise typer.Exit(code)
             return
-        backend = load_backend(
-            model,
-            portable=portable,
-            threads=threads,
-            providers=provider,
-            learn=online,
-            learn_every=learn_every,
-            relearn_at_cuts=relearn_at_cuts,
-            options={"kernel_size": kernel_size} if kernel_size is not None else None,
-        )
-        reports = []
-        for job in jobs:
-            report = run_with_progress(
-                job,
-                backend,
-                lay,
-                overrides,
-                half=half,
-                preview=preview,
-                err=err,
-                overwrite=overwrite,
-                resume=resume,
-                max_pixels=max_pixels,
+        with kernel_compilation(progress_line(err)):  # numba compiles on first use
+            backend = load_backend(
+                model,
+                portable=portable,
+                threads=threads,
+                providers=provider,
+                learn=online,
+                learn_every=learn_every,
+                relearn_at_cuts=relearn_at_cuts,
+                options={"kernel_size": kernel_size} if kernel_size is not None else None,
             )
-            report["online"] = online_summary(backend)
-            print_report(report, model, out)
-            if report["online"]:
-                print_online(report["online"], out)
-            reports.append(report)
-        if len(reports) > 1:
-            print_overall(reports, model, out)
-        if metrics_json is not None:
-            if several:
-                payload: dict[str, Any] = {"model": model, "layout": lay.name, "sequences": reports}
-            else:
-                payload = {"model": model, "layout": lay.name, **reports[0]}
-            write_json(metrics_json, payload)
+            reports = []
+            for job in jobs:
+                report = run_with_progress(
+                    job,
+                    backend,
+                    lay,
+                    overrides,
+                    half=half,
+                    preview=preview,
+                    err=err,
+                    overwrite=overwrite,
+                    resume=resume,
+                    max_pixels=max_pixels,
+                )
+                report["online"] = online_summary(backend)
+                print_report(report, model, out)
+                if report["online"]:
+                    print_online(report["online"], out)
+                reports.append(report)
+            if len(reports) > 1:
+                print_overall(reports, model, out)
+            if metrics_json is not None:
+                if several:
+                    payload: dict[str, Any] = {
+                        "model": model,
+                        "layout": lay.name,
+                        "sequences": reports,
+                    }
+                else:
+                    payload = {"model": model, "layout": lay.name, **reports[0]}
+                write_json(metrics_json, payload)
+
+
+def progress_line(err: Console) -> Callable[[str], None]:
+    """A progress message: above the live bar on a terminal, else a plain stderr line."""
+    if err.is_terminal:
+        return lambda message: err.print(message, markup=False, highlight=False)
+    return plain_line
 
 
 def run_cluster(

@@ -13,6 +13,7 @@ from typing import Annotated
 import typer
 
 from rtdenoise.cli.common import (
+    CONTEXT_SETTINGS,
     FamilyModuleOption,
     VersionOption,
     fail,
@@ -22,11 +23,13 @@ from rtdenoise.cli.common import (
     passive_openmp_threads,
     user_errors,
 )
+from rtdenoise.runtime.sequences.layouts import LAYOUTS, get_layout
 
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     rich_markup_mode="markdown",
+    context_settings=CONTEXT_SETTINGS,
 )
 
 
@@ -123,7 +126,9 @@ def train_command(
     ctx: typer.Context,
     sequences: Annotated[
         list[Path],
-        typer.Argument(metavar="SEQ_DIR", help="Training sequence folders (canonical layout)."),
+        typer.Argument(
+            metavar="SEQ_DIR", help="Training sequence folders (in the --layout's channels)."
+        ),
     ],
     output: Annotated[Path, typer.Option("--output", "-o", help="Checkpoint to write (.pt).")],
     family: Annotated[
@@ -133,6 +138,16 @@ def train_command(
         ),
     ] = "afn",
     family_module: FamilyModuleOption = None,
+    layout: Annotated[
+        str,
+        typer.Option(
+            "--layout",
+            "-l",
+            help="Channel layout of the training and --val sequences, as denoise-run reads "
+            "them: a preset (" + ", ".join(LAYOUTS) + ") or a layout file `my_renderer.toml` "
+            "(docs/layouts.md).",
+        ),
+    ] = "canonical",
     steps: Annotated[int, typer.Option(min=1, help="Total optimisation steps.")] = 1000,
     crop: Annotated[
         int, typer.Option(min=8, help="Square crop side in pixels (at most the frame size).")
@@ -264,11 +279,12 @@ def train_command(
     ] = Recipe.default,
     version: VersionOption = False,
 ) -> None:
-    """Train a denoiser on sequences in the canonical EXR layout and write a checkpoint.
+    """Train a denoiser on EXR sequences and write a checkpoint.
 
-    Each SEQ_DIR holds frame_NNNN.exr (R,G,B noisy radiance, albedo.R/G/B, normal.X/Y/Z,
-    depth.Z, motion.X/Y in pixels with previous = current + motion, x right, y down) and
-    ref_NNNN.exr (R,G,B reference).
+    Each SEQ_DIR holds frame_NNNN.exr and ref_NNNN.exr (the reference). In the canonical
+    layout (the default) a frame has R,G,B noisy radiance, albedo.R/G/B, normal.X/Y/Z,
+    depth.Z, motion.X/Y in pixels with previous = current + motion, x right, y down; --layout
+    reads any other as denoise-run does (blender, or a layout file), converted at load time.
 
     Every step draws --batch clips of --frames consecutive frames with one random --crop,
     flip (and with --rotations a quarter turn, with --permute-channels a colour permutation)
@@ -286,6 +302,8 @@ def train_command(
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
     sample_counts = _parse_counts(samples) if samples else ()
+    with user_errors():
+        get_layout(layout)  # a typo or a bad layout file fails before torch loads
     with user_errors(extra="train"):
         from rtdenoise.models.recipes import recipe_settings
         from rtdenoise.models.train import TrainSettings, train
@@ -327,6 +345,7 @@ def train_command(
             log_every=log_every,
             workers=workers,
             recipe=recipe.value,
+            layout=layout,
         )
         settings = dataclasses.replace(settings, **overrides)
         result = train(

@@ -8,7 +8,8 @@ float16 when that is exact (the renderer writes half-float EXR), else float32 (e
 background depth of 1e10, or full-float files); the clip sampler converts each crop to float32.
 
 The key hashes the folder's resolved path, the name, size and modification time of every file
-in it, the buffers and the per-sample features, so an edited or re-rendered sequence is
+in it, the buffers, the per-sample features and (for any layout but `canonical`) the layout
+file's name and content, so an edited or re-rendered sequence is
 converted again. A conversion is written into a temporary folder and renamed into place, so an
 interrupted run leaves no half-written entry and concurrent runs do not read one.
 """
@@ -27,6 +28,7 @@ import numpy as np
 
 from rtdenoise.runtime.contract import SAMPLES
 from rtdenoise.runtime.sequences.frames import shot_cuts
+from rtdenoise.runtime.sequences.layouts import Layout, get_layout, layout_fingerprint
 
 from .data import SequenceData, load_sequence
 
@@ -35,7 +37,10 @@ _DONE = "sequence.json"
 
 
 def cache_key(
-    folder: str | os.PathLike, buffers: Sequence[str], sample_features: Sequence[str] | None
+    folder: str | os.PathLike,
+    buffers: Sequence[str],
+    sample_features: Sequence[str] | None,
+    layout: Layout | str = "canonical",
 ) -> str:
     """16 hex digits naming what a cache entry was made from (see the module docstring)."""
     folder = Path(folder).resolve()
@@ -45,7 +50,11 @@ def cache_key(
         if p.is_file() and (st := p.stat())
     )
     features = list(sample_features or ()) if SAMPLES in buffers else []
-    blob = json.dumps([CACHE_VERSION, str(folder), files, list(buffers), features])
+    parts: list = [CACHE_VERSION, str(folder), files, list(buffers), features]
+    layout = get_layout(layout) if isinstance(layout, str) else layout
+    if layout.name != "canonical":  # canonical entries keep the keys they always had
+        parts.append(layout_fingerprint(layout))
+    blob = json.dumps(parts)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -70,13 +79,15 @@ def cached_sequence(
     buffers: Sequence[str],
     sample_features: Sequence[str] | None,
     cache: str | os.PathLike,
+    layout: Layout | str = "canonical",
 ) -> SequenceData:
-    """The sequence at `folder` memory-mapped from `cache`, converted first if needed."""
+    """The sequence at `folder` (read through `layout`) memory-mapped from `cache`, converted
+    first if needed."""
     folder, cache = Path(folder), Path(cache)
-    entry = cache / f"{folder.name}-{cache_key(folder, buffers, sample_features)}"
+    entry = cache / f"{folder.name}-{cache_key(folder, buffers, sample_features, layout)}"
     if (entry / _DONE).is_file():
         return _open(entry, folder, buffers)
-    seq = load_sequence(folder, buffers, sample_features)
+    seq = load_sequence(folder, buffers, sample_features, layout)
     cache.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{entry.name}.", dir=cache))
     try:

@@ -1,9 +1,11 @@
 """Training data: sequences (in memory or memory-mapped) -> batches of augmented clips.
 
-A sequence is a folder in the canonical EXR layout (docs/contract.md, "EXR layout"):
-`frame_NNNN.exr` and `ref_NNNN.exr`. A training sample is a clip of F consecutive frames of
-one sequence with one random crop, augmentation and brightness factor shared by all its frames
-(Lee24 IV-B: random 128 x 128 crops, horizontal / vertical flips, brightness in [0.8, 1.2];
+A sequence is a folder of `frame_NNNN.exr` and `ref_NNNN.exr`, in the canonical EXR layout
+(docs/contract.md, "EXR layout") or in any layout `denoise-run` reads (a preset such as
+`blender` or a layout file, runtime/sequences/layouts.py), converted at load time the same way.
+A training sample is a clip of F consecutive frames of one sequence with one random crop,
+augmentation and brightness factor shared by all its frames (Lee24 IV-B: random 128 x 128
+crops, horizontal / vertical flips, brightness in [0.8, 1.2];
 Isik21 4.3 and Fan21's official code add 90-degree rotations; Open Image Denoise permutes the
 colour channels). The geometric and colour rules are models/augment.py's: flips and quarter
 turns transform motion and camera-space normals with the image, depth is unchanged, a colour
@@ -48,6 +50,7 @@ from rtdenoise.runtime.sequences.frames import (
     read_reference,
     shot_cuts,
 )
+from rtdenoise.runtime.sequences.layouts import Layout, get_layout
 from rtdenoise.runtime.sequences.samples import radiance_channels
 
 from .augment import Transform, apply_transform, permutations
@@ -101,10 +104,13 @@ def load_sequence(
     folder: str | os.PathLike,
     buffers: Sequence[str],
     sample_features: Sequence[str] | None = None,
+    layout: Layout | str = "canonical",
 ) -> SequenceData:
     """Read every frame (only the named buffers) and its reference into memory.
 
-    `samples` among the buffers is read with the per-sample features `sample_features`.
+    `samples` among the buffers is read with the per-sample features `sample_features`;
+    `layout` (a preset name, a layout file or a Layout) maps the files' channels, as in
+    `denoise-run --layout`.
     Raises InputError naming the file for a missing buffer, reference or a size mismatch.
     """
     folder = Path(folder)
@@ -113,8 +119,9 @@ def load_sequence(
     refs: list[np.ndarray] = []
     size: tuple[int, int] | None = None
     features = sample_features if SAMPLES in buffers else None
+    layout = get_layout(layout) if isinstance(layout, str) else layout
     for i, path in enumerate(paths):
-        frame = read_frame(path, expect_size=size, index=i, sample_features=features)
+        frame = read_frame(path, layout, expect_size=size, index=i, sample_features=features)
         size = frame.size
         for name in buffers:
             if name not in frame.buffers:
@@ -125,7 +132,7 @@ def load_sequence(
         ref_path = find_reference(path)
         if ref_path is None:
             raise InputError(f"{path}: no reference ref_NNNN.exr beside it (needed for training)")
-        refs.append(read_reference(ref_path, expect_size=size))
+        refs.append(read_reference(ref_path, layout, expect_size=size))
     return SequenceData(
         name=folder.name,
         buffers={name: np.stack(arrs).astype(np.float32) for name, arrs in stacks.items()},
@@ -155,6 +162,7 @@ def load_sequences(
     buffers: Sequence[str],
     sample_features: Sequence[str] | None = None,
     cache: str | os.PathLike | None = None,
+    layout: Layout | str = "canonical",
 ) -> list[SequenceData]:
     """`load_sequence` for each folder, or with `cache` (a folder) each sequence converted once
     to .npy files there and memory-mapped (models/cache.py); InputError if none is given.
@@ -168,8 +176,8 @@ def load_sequences(
     if cache is not None:
         from .cache import cached_sequence
 
-        return [cached_sequence(f, buffers, sample_features, cache) for f in folders]
-    first = load_sequence(folders[0], buffers, sample_features)
+        return [cached_sequence(f, buffers, sample_features, cache, layout) for f in folders]
+    first = load_sequence(folders[0], buffers, sample_features, layout)
     estimate, free = first.nbytes * len(folders), available_memory()
     if free is not None and estimate > MEMORY_SHARE * free:
         raise InputError(
@@ -177,7 +185,8 @@ def load_sequences(
             f"as float32 in memory, {free / 2**30:.1f} GiB are available: give a cache folder "
             f"(denoise-train --cache DIR) to memory-map them instead"
         )
-    return [first, *(load_sequence(f, buffers, sample_features) for f in folders[1:])]
+    rest = (load_sequence(f, buffers, sample_features, layout) for f in folders[1:])
+    return [first, *rest]
 
 
 def flip(

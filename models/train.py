@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from rtdenoise.runtime.contract import SAMPLES
+from rtdenoise.runtime.sequences.layouts import get_layout
 from rtdenoise.runtime.sequences.metrics import psnr
 from rtdenoise.runtime.sequences.samples import sample_features_of
 
@@ -66,6 +67,7 @@ class TrainSettings:
     schedule: str = "constant"  # models.schedule.SCHEDULES: constant, onecycle, cosine, step
     warmup: float = 0.15  # warm-up fraction of the steps of onecycle / cosine
     cache: str | None = None  # folder of the memory-mapped sequence cache (models.cache)
+    layout: str = "canonical"  # the sequences' layout: a preset name or a layout file (.toml)
     stop_at: int | None = None  # end this call after this step (the schedule spans `steps`)
     workers: int = 0  # >= 1: batch k from stream (seed, k), drawn by worker processes
     recipe: str = "default"  # models.recipes: the settings this run started from
@@ -205,9 +207,12 @@ def train(
     if train_state is not None:
         check_resumable(train_state.get("schedule"), schedule, str(resume))
     features = sample_features_of(model.config()) if SAMPLES in model.inputs else None
-    sequences = load_sequences(data_dirs, model.inputs, features, cache=s.cache)
+    layout = get_layout(s.layout)  # a bad name or file fails before any sequence is read
+    sequences = load_sequences(data_dirs, model.inputs, features, cache=s.cache, layout=layout)
     val_buffers = tuple(dict.fromkeys((*model.inputs, "color")))  # + the noisy input's PSNR
-    val_sequences = load_sequences(val_dirs, val_buffers, features) if val_dirs else []
+    val_sequences = (
+        load_sequences(val_dirs, val_buffers, features, layout=layout) if val_dirs else []
+    )
     where = f"memory-mapped from {s.cache}" if s.cache else "in memory"
     log(
         f"data: {len(sequences)} sequence(s), "

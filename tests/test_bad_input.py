@@ -19,6 +19,7 @@ from collections.abc import Callable
 import numpy as np
 import OpenEXR
 import pytest
+from progress_lines import other_lines
 from typer.testing import CliRunner
 
 from rtdenoise.cli.run import app
@@ -264,7 +265,7 @@ def test_unreadable_files_are_one_line_errors(tmp_path, path, breaker, written):
     make_files(tmp_path / "seq", [1, 2, 3])
     breaker(tmp_path / "seq" / "frame_0002.exr")
     res = run_cli(tmp_path / "seq", "-o", tmp_path / "out", path=path)
-    lines = res.stderr.strip().splitlines()
+    lines = other_lines(res.stderr)  # after the progress of the frames before
     assert res.exit_code == 2 and len(lines) == 1, res.output
     assert lines[0].startswith("error: ") and "frame_0002.exr: cannot read EXR" in lines[0]
     out = tmp_path / "out"

@@ -125,3 +125,17 @@ def test_help_keeps_bracketed_words(command):
         for tag in re.findall(r"(?<!\\)\[[A-Za-z_][\w.-]*\]", text)
     ]
     assert eaten == []
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [["export"], ["run"], ["train"], ["render"], ["bench"], ["bench", "model"], ["bench", "op"],
+     ["bench", "compare"], ["bench", "stages"]],
+)  # fmt: skip
+def test_short_help_on_every_command(argv):
+    """`-h` is `--help` everywhere, subcommands included: the same text."""
+    command, *sub = argv
+    short = runner.invoke(app_of(command), [*sub, "-h"], terminal_width=120)
+    long = runner.invoke(app_of(command), [*sub, "--help"], terminal_width=120)
+    assert short.exit_code == 0, short.output
+    assert short.output == long.output and "Usage:" in short.output

@@ -78,3 +78,18 @@ def test_export_of_nan_weights_is_one_line_naming_the_weight(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("error:"), result.output
     assert f"nan.pt: weight {name!r}" in lines[0] and "has 3 NaN/Inf of" in lines[0]
     assert not out.exists()
+
+
+def test_export_refuses_to_overwrite_without_the_flag(checkpoint, tmp_path):
+    """An existing OUTPUT is kept, named in one line, before any work; --overwrite replaces it."""
+    out = tmp_path / "afn.onnx"
+    out.write_bytes(b"an earlier export")
+    args = [str(checkpoint), "-o", str(out), "--frames", "2", "--size", "32"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert lines == [f"error: {out}: exists; --overwrite replaces it"]
+    assert out.read_bytes() == b"an earlier export"
+    result = runner.invoke(app, [*args, "--overwrite"])
+    assert result.exit_code == 0, result.output
+    assert onnx.load(str(out)).metadata_props

@@ -7,6 +7,7 @@ import sys
 
 import numpy as np
 import pytest
+from progress_lines import other_lines
 from test_bad_input import make_files
 from test_cli_run import invoke, make_sequence, rgb, temp_files
 
@@ -14,7 +15,8 @@ from rtdenoise.runtime.sequences.exr import read_exr, write_exr
 
 
 def one_error_line(res) -> str:
-    lines = res.stderr.strip().splitlines()
+    """The one error line (after the progress of frames done before it, if any)."""
+    lines = other_lines(res.stderr)
     assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), res.output
     return lines[0]
 

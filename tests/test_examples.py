@@ -51,8 +51,14 @@ def test_readme_embed_snippet_is_the_example(tmp_path):
         np.testing.assert_array_equal(np.stack([got[c] for c in "RGB"]), expected)
 
 
-def test_plain_host_needs_only_onnxruntime_and_numpy(tmp_path):
-    """Its imports, and a run with rtdenoise blocked."""
+FAMILIES = ("afn", "wskp", "nbg", "affinity", "crossreg")  # every shipped demo
+
+
+def test_the_demos_are_these_five():
+    assert sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) == sorted(FAMILIES)
+
+
+def test_plain_host_imports_only_onnxruntime_and_numpy():
     path = EXAMPLES / "plain_onnxruntime_host.py"
     imported = set()
     for node in ast.walk(ast.parse(path.read_text())):
@@ -60,10 +66,16 @@ def test_plain_host_needs_only_onnxruntime_and_numpy(tmp_path):
             imported |= {a.name.split(".")[0] for a in node.names}
         elif isinstance(node, ast.ImportFrom):
             imported.add((node.module or "").split(".")[0])
-    assert imported == {"__future__", "json", "sys", "numpy", "onnxruntime"}
+    assert imported == {"__future__", "collections", "json", "sys", "numpy", "onnxruntime"}
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_plain_host_runs_every_demo_without_rtdenoise(family):
+    """Its own main (synthetic frames: 2 samples per pixel for affinity), rtdenoise blocked."""
+    path = EXAMPLES / "plain_onnxruntime_host.py"
     code = (
         "import runpy, sys; sys.modules['rtdenoise'] = None; "
-        f"sys.argv = ['host', {str(MODELS_DIR / 'wskp.onnx')!r}, '3']; "
+        f"sys.argv = ['host', {str(MODELS_DIR / f'{family}.onnx')!r}, '3']; "
         f"runpy.run_path({str(path)!r}, run_name='__main__')"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -71,7 +83,7 @@ def test_plain_host_needs_only_onnxruntime_and_numpy(tmp_path):
     assert proc.stdout.count("output (3, 48, 64)") == 3
 
 
-@pytest.mark.parametrize("family", ["wskp", "afn", "crossreg"])
+@pytest.mark.parametrize("family", FAMILIES)
 @pytest.mark.parametrize("fast_kernels", [True, False])
 def test_plain_host_matches_denoiser_over_8_frames(family, fast_kernels):
     """The same 8 frames with a camera cut before frame 5: equal within 1e-5, state fed back
@@ -88,9 +100,23 @@ def test_plain_host_matches_denoiser_over_8_frames(family, fast_kernels):
         if i == 5:
             host.reset()
             den.reset()
-        ours, theirs = host.process(frame.buffers), den.process(frame.buffers)
+        buffers = frame.buffers
+        if family == "affinity":  # the host makes S = 1 itself, from the pixel buffers
+            buffers = {k: v for k, v in buffers.items() if k != "samples"}
+        ours, theirs = host.process(buffers), den.process(frame.buffers)
         worst = max(worst, float(np.max(np.abs(ours - theirs) / (1 + np.abs(theirs)))))
     assert worst <= 1e-5, worst
+
+
+def test_plain_host_feeds_several_samples_as_denoiser_does():
+    """affinity with S = 2 per-sample frames (rank 5), as Denoiser reads them."""
+    plain = load_example("plain_onnxruntime_host")
+    host = plain.PlainHost(str(MODELS_DIR / "affinity.onnx"))
+    den = Denoiser(MODELS_DIR / "affinity.onnx", fast_kernels=False)
+    for t in range(3):
+        frame = plain.synthetic_frame(host.buffers, t, 32, 40, host.sample_features, spp=2)
+        assert frame["samples"].shape == (2, 10, 32, 40)
+        np.testing.assert_allclose(host.process(frame), den.process(frame), rtol=1e-5, atol=1e-5)
 
 
 def test_plain_host_restarts_on_a_size_change():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import ast
 import inspect
+import os
 import subprocess
 import sys
 import sysconfig
@@ -84,3 +85,32 @@ print(c.__file__)
     assert proc.returncode == 0, proc.stderr
     files = [Path(line) for line in proc.stdout.split()]
     assert files == [ROOT / "runtime/sequences/metrics.py", ROOT / "runtime/contract.py"]
+
+
+def test_the_checkout_root_defers_to_an_installed_copy(tmp_path):
+    """From the root the checkout's rtdenoise/ comes first on sys.path; with a non-editable
+    install on sys.path, every submodule (the version too) is the installed copy's (issue 28:
+    `python -c "from rtdenoise.runtime import Denoiser"` there after `pip install .`)."""
+    site = tmp_path / "site"
+    (site / "rtdenoise" / "runtime").mkdir(parents=True)
+    (site / "rtdenoise" / "__init__.py").write_text("")
+    (site / "rtdenoise" / "_version.py").write_text('__version__ = "9.9.9"\n')
+    (site / "rtdenoise" / "runtime" / "__init__.py").write_text("class Denoiser: pass\n")
+    code = (
+        "import rtdenoise, rtdenoise.runtime as r; from rtdenoise.runtime import Denoiser; "
+        "print(rtdenoise.__file__, r.__file__, rtdenoise.__version__)"
+    )
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    init, runtime, version = proc.stdout.split()
+    assert Path(init) == ROOT / "rtdenoise" / "__init__.py"  # found first: the shadow
+    assert Path(runtime) == site / "rtdenoise" / "runtime" / "__init__.py" and version == "9.9.9"
+    # Without an install elsewhere (this editable venv) the checkout stays itself.
+    proc = subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert Path(proc.stdout.split()[1]) == ROOT / "runtime" / "__init__.py"

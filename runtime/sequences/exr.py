@@ -21,7 +21,7 @@ images.
 from __future__ import annotations
 
 import os
-from collections.abc import Collection, Iterator
+from collections.abc import Collection, Iterator, Mapping
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
@@ -254,12 +254,25 @@ def read_exr_windows(path: str | os.PathLike) -> tuple[Window, Window]:
         raise InputError(f"{path}: cannot read EXR ({exc})") from exc
 
 
+def read_exr_attributes(path: str | os.PathLike, prefix: str = "") -> dict[str, str]:
+    """The string attributes of the file's first part whose names start with `prefix`, from
+    its header (no pixels); InputError naming the file when it does not read."""
+    path = Path(path)
+    try:
+        with OpenEXR.File(str(path), header_only=True) as exr:  # the header lives with it
+            header = exr.parts[0].header
+            return {k: v for k, v in header.items() if k.startswith(prefix) and isinstance(v, str)}
+    except Exception as exc:  # OpenEXR raises RuntimeError for truncated/corrupt headers
+        raise InputError(f"{path}: cannot read the EXR header ({exc})") from None
+
+
 def write_exr(
     path: str | os.PathLike,
     channels: dict[str, np.ndarray],
     *,
     half: bool = True,
     windows: tuple[Window, Window] | None = None,
+    attributes: Mapping[str, str] | None = None,
 ) -> Path:
     """Write 2-D channels to a single-part, ZIP-compressed EXR, atomically.
 
@@ -267,6 +280,8 @@ def write_exr(
     already of that type and contiguous are written as they are (no conversion, no copy).
     windows: (data window, display window) to store, e.g. the input's (`read_exr_windows`);
     the data window must match the channels' size. None: both (0, 0) to the size.
+    attributes: string attributes for the header (e.g. `provenance.record`'s), read back by
+    `read_exr_attributes`.
     """
     path = Path(path)
     if not channels:
@@ -288,6 +303,10 @@ def write_exr(
                 f"channels are {first[1]}x{first[0]}"
             )
         header["dataWindow"], header["displayWindow"] = data_window, display_window
+    for key, value in (attributes or {}).items():
+        if key in header or not isinstance(value, str):
+            raise ValueError(f"write_exr: attribute {key!r} must be a new name with a str value")
+        header[key] = value
     with atomic_path(path) as tmp, OpenEXR.File(header, data) as exr:
         exr.write(str(tmp))
     return path

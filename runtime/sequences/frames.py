@@ -537,11 +537,17 @@ def as_written(rgb: np.ndarray, half: bool = True) -> np.ndarray:
 
 
 def write_rgb(
-    path: Spec, data: np.ndarray, half: bool = True, windows: tuple[Window, Window] | None = None
+    path: Spec,
+    data: np.ndarray,
+    half: bool = True,
+    windows: tuple[Window, Window] | None = None,
+    attributes: Mapping[str, str] | None = None,
 ) -> Path:
     """Write a (3, H, W) array from `quantize_output` as channels R,G,B (ZIP), atomically,
-    without converting it again; `windows`: the (data, display) windows to keep."""
-    return write_exr(path, {"R": data[0], "G": data[1], "B": data[2]}, half=half, windows=windows)
+    without converting it again; `windows`: the (data, display) windows to keep;
+    `attributes`: string header attributes (what made the output: sequences/provenance.py)."""
+    rgb = {"R": data[0], "G": data[1], "B": data[2]}
+    return write_exr(path, rgb, half=half, windows=windows, attributes=attributes)
 
 
 def write_output(path: Spec, rgb: np.ndarray, half: bool = True) -> Path:

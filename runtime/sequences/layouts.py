@@ -34,6 +34,7 @@ conversion still applies (the layout states the file's conventions).
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 from collections.abc import Collection, Iterable, Mapping, Sequence
@@ -229,6 +230,14 @@ def get_layout(name: str | os.PathLike) -> Layout:
         f"unknown layout {text!r}; known layouts: {', '.join(LAYOUTS)}, or a layout file "
         "(.toml, docs/layouts.md)"
     )
+
+
+def layout_fingerprint(layout: Layout) -> str:
+    """What a cache entry or an output records of the layout it was read through: a preset's
+    name (its file is the package's), else the name and the sha256 of the layout's file."""
+    if layout.path is None or Path(layout.path).parent == LAYOUTS_DIR:
+        return layout.name
+    return f"{layout.name}:{hashlib.sha256(Path(layout.path).read_bytes()).hexdigest()}"
 
 
 def parse_overrides(items: Iterable[str] | None) -> dict[str, str]:

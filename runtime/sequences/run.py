@@ -32,7 +32,14 @@ from ..errors import InputError
 from ..guard import nonfinite_pixels
 from .atomic import check_writable, temp_files_of
 from .backend import Backend
-from .exr import Window, pixel_limit, read_exr, read_exr_header, read_exr_windows
+from .exr import (
+    Window,
+    pixel_limit,
+    read_exr,
+    read_exr_attributes,
+    read_exr_header,
+    read_exr_windows,
+)
 from .frames import (
     frame_number,
     match_references,
@@ -43,9 +50,10 @@ from .frames import (
     shot_cuts,
     write_rgb,
 )
-from .layouts import Layout
+from .layouts import Layout, get_layout
 from .metrics import SequenceMetrics
 from .preview import write_png
+from .provenance import mismatch, record
 from .samples import sample_features_of
 
 METRIC_KEYS = ("psnr", "ssim", "smape", "relmse")
@@ -204,6 +212,9 @@ def run_sequence(
     overwrite: replace existing outputs; resume: keep them (those frames are scored from
         their files) and denoise the others, after re-running up to `RESUME_WARMUP` frames
         before each to rebuild the history; neither: InputError if an output exists.
+        Every output records its model, options and the rtdenoise version in its header
+        (runtime/sequences/provenance.py); resume refuses (InputError naming the file and
+        what differs) a kept output of another model or other options.
     A gap in the frame numbers (2 -> 4) resets the history, with a warning, and breaks the
     temporal metrics' chain.
     on_frame: called after each frame is written (or kept) and scored.
@@ -269,6 +280,18 @@ def _run_sequence(
             if problem:
                 done[i] = False
                 on_warning(f"{out_path}: kept output does not read ({problem}): denoised again")
+    made_by = record(
+        backend, get_layout(layout) if isinstance(layout, str) else layout, overrides, half
+    )
+    for i, out_path in enumerate(outputs):
+        if done[i]:
+            with reading():
+                why = mismatch(read_exr_attributes(out_path, "rtdenoise."), made_by)
+            if why:
+                raise InputError(
+                    f"{out_path}: --resume would mix outputs: {why}; rerun with the options "
+                    "that made it, --overwrite to replace the outputs, or another -o folder"
+                )
     stale = remove_stale_temps(outputs, preview)
     if stale:
         on_warning(f"{job.out_dir}: removed {stale} temp files an interrupted run left")
@@ -342,7 +365,7 @@ def _run_sequence(
                     out = np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0)
                 t2 = time.perf_counter()
                 written = quantize_output(out, half)
-                write_rgb(out_path, written, half, windows)
+                write_rgb(out_path, written, half, windows, made_by)
                 # Score and preview what was written: the float32 view of the stored half floats.
                 scored = half and (preview or ref is not None)
                 view = written.astype(np.float32) if scored else written

@@ -1,0 +1,103 @@
+"""Check an installed rtdenoise wheel: every native part built in, no framework, the demo runs.
+
+    python scripts/check_wheel.py PROJECT_DIR
+
+Run with the interpreter of a venv holding only the wheel and its dependencies (cibuildwheel's
+test step, scripts/build_release_wheel.sh), from any folder but the checkout. Checks:
+
+- every Extension that PROJECT_DIR/setup.py declares (found in its source, so a new one is
+  checked without an edit here) imports from the install as a compiled module;
+- rtdenoise itself comes from the install, and no deep learning framework is installed;
+- the fast kernels reach ONNX Runtime through the native bridge (no fallback warning);
+- `denoise-run --demo` denoises the three bundled sequences.
+
+Exits 1 with one line per failed check.
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.machinery
+import importlib.util
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+
+def declared_extensions(setup_py: Path) -> list[str]:
+    """The module names of the `Extension(...)` calls in setup.py (literal names only)."""
+    names = []
+    for node in ast.walk(ast.parse(setup_py.read_text(encoding="utf-8"))):
+        if not isinstance(node, ast.Call):
+            continue
+        func = node.func
+        called = func.id if isinstance(func, ast.Name) else getattr(func, "attr", None)
+        if called != "Extension":
+            continue
+        arg = node.args[0] if node.args else next(
+            (k.value for k in node.keywords if k.arg == "name"), None
+        )
+        if not (isinstance(arg, ast.Constant) and isinstance(arg.value, str)):
+            raise SystemExit(f"{setup_py}:{node.lineno}: an Extension without a literal name")
+        names.append(arg.value)
+    return names
+
+
+def check(project: Path) -> list[str]:
+    problems = []
+    import rtdenoise
+
+    if project.resolve() in Path(rtdenoise.__file__).resolve().parents:
+        problems.append(f"rtdenoise imported from the checkout ({rtdenoise.__file__})")
+    extensions = declared_extensions(project / "setup.py")
+    if not extensions:
+        problems.append(f"{project / 'setup.py'} declares no Extension")
+    for name in extensions:
+        spec = importlib.util.find_spec(name)
+        origin = spec.origin if spec is not None else None
+        if origin is None or not origin.endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES)):
+            problems.append(f"extension {name}: not in the installed wheel (found {origin})")
+    framework = [m for m in ("torch", "onnx", "onnxscript") if importlib.util.find_spec(m)]
+    if framework:
+        problems.append(f"the base install pulled in {', '.join(framework)}")
+
+    from rtdenoise.runtime import Denoiser
+
+    bridge = Denoiser("demo:afn").bridge
+    if bridge != "native":
+        problems.append(f"the fast kernels run through the {bridge!r} bridge, not 'native'")
+    scripts = Path(sys.executable).parent
+    command = scripts / ("denoise-run.exe" if os.name == "nt" else "denoise-run")
+    with tempfile.TemporaryDirectory() as out:
+        proc = subprocess.run(
+            [str(command), "--demo", "-o", out], capture_output=True, text=True, timeout=900
+        )
+        outputs = len(list(Path(out).glob("seq_*/frame_*.exr")))
+    if proc.returncode != 0 or "over 3 sequences: mean PSNR" not in proc.stdout:
+        problems.append(f"denoise-run --demo failed ({proc.returncode}): {proc.stderr[-2000:]}")
+    elif outputs != 24:
+        problems.append(f"denoise-run --demo wrote {outputs} frames, not 24")
+    warned = [line for line in proc.stderr.splitlines() if line.startswith(("warning", "error"))]
+    if warned:
+        problems.append(f"denoise-run --demo warned: {warned[0]}")
+    if not problems:
+        print(proc.stdout.strip().splitlines()[-1])
+    return problems
+
+
+def main() -> int:
+    if len(sys.argv) != 2:
+        print(__doc__.strip().splitlines()[2].strip(), file=sys.stderr)
+        return 2
+    problems = check(Path(sys.argv[1]))
+    for p in problems:
+        print(f"check_wheel: {p}", file=sys.stderr)
+    if not problems:
+        print("check_wheel: ok")
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
