@@ -623,6 +623,161 @@ void temporal_accumulation_run(const Tensor *in, Tensor *out, const int64_t *, i
                  [&](int64_t b, int64_t e) { temporal_accumulation_rows(a, b, e); });
 }
 
+/* ------------------------------------------------------------------ WeightSharingFilter */
+
+std::string wsf_sizes(const int64_t *attrs) {
+    int64_t size_min = attrs[0], size_step = attrs[1], count = attrs[2];
+    if (count < 1 || size_min < 1 || size_min % 2 == 0 || size_step < 0 || size_step % 2)
+        return "WeightSharingFilter needs count >= 1, odd size_min >= 1 and even size_step >= 0, "
+               "got size_min=" + std::to_string(size_min) + ", size_step=" +
+               std::to_string(size_step) + ", count=" + std::to_string(count);
+    return "";
+}
+
+std::string weight_sharing_filter_shapes(const Tensor *in, const int64_t *attrs, Shape *out) {
+    std::string e = wsf_sizes(attrs);
+    if (!e.empty()) return e;
+    const char *names[] = {"image", "weights"};
+    e = same_nhw("WeightSharingFilter", in, names, 2);
+    if (!e.empty()) return e;
+    if (in[1].dims[1] != attrs[2])
+        return "WeightSharingFilter: weights have " + std::to_string(in[1].dims[1]) +
+               " channels; expected count = " + std::to_string(attrs[2]) +
+               " (one importance map per box size)";
+    set_shape(out[0], in[0].dims[0], attrs[2] * in[0].dims[1], in[0].dims[2], in[0].dims[3]);
+    return "";
+}
+
+constexpr int64_t STRIP_ROWS = 96;  // output rows per task (kernels/weight_sharing_filter.py)
+
+struct WsfArgs {
+    const float *image, *weights;
+    float *out;
+    int64_t n_ch, h, w, count, size_min, size_step;
+    std::vector<int64_t> task_n, task_i, task_b0, task_b1;
+};
+
+inline void add3(float *RESTRICT dst, const float *RESTRICT a, const float *RESTRICT b, int64_t n) {
+    for (int64_t x = 0; x < n; ++x) dst[x] = a[x] + b[x];
+}
+
+inline void add_into(float *RESTRICT dst, const float *RESTRICT a, int64_t n) {
+    for (int64_t x = 0; x < n; ++x) dst[x] += a[x];
+}
+
+/* rows[t] (t < s) = plane p of source row y0 + t (w_i * image_p, or w_i for p == C); 0
+ * outside the image. */
+inline void wsf_source_rows(const WsfArgs &a, int64_t n, int64_t i, int64_t p, int64_t y0,
+                            int64_t s, float *rows) {
+    const int64_t h = a.h, w = a.w;
+    for (int64_t t = 0; t < s; ++t) {
+        const int64_t y = y0 + t;
+        float *RESTRICT row = rows + t * w;
+        if (y < 0 || y >= h) {
+            std::fill(row, row + w, 0.0f);
+            continue;
+        }
+        const float *RESTRICT wt = a.weights + ((n * a.count + i) * h + y) * w;
+        if (p < a.n_ch) {
+            const float *RESTRICT img = a.image + ((n * a.n_ch + p) * h + y) * w;
+            for (int64_t x = 0; x < w; ++x) row[x] = wt[x] * img[x];
+        } else {
+            std::copy(wt, wt + w, row);
+        }
+    }
+}
+
+/* kernels/weight_sharing_filter.py _horizontal: suf[j, t*nb + b] = the s x s box sum of
+ * output row t of the block at column b*s + j. */
+inline void wsf_horizontal(const float *cur, const float *vpre, int64_t s, int64_t r, int64_t w,
+                           int64_t nb, float *q, float *qt, float *suf) {
+    const int64_t m = s * nb;
+    float *q_row = q + r;  // q: (nb, s) zero-padded row, the window's row at [r, r + w)
+    for (int64_t t = 0; t < s; ++t) {
+        if (t == 0)
+            std::copy(cur, cur + w, q_row);
+        else
+            add3(q_row, cur + t * w, vpre + (t - 1) * w, w);
+        float *qt_t = qt + t * nb;  // qt[j, t*nb + b] = q[b, j]
+        for (int64_t j = 0; j < s; ++j)
+            for (int64_t b = 0; b < nb; ++b) qt_t[j * m + b] = q[b * s + j];
+    }
+    std::copy(qt + (s - 1) * m, qt + s * m, suf + (s - 1) * m);
+    for (int64_t j = s - 2; j >= 0; --j) add3(suf + j * m, suf + (j + 1) * m, qt + j * m, m);
+    for (int64_t j = 1; j < s - 1; ++j) add_into(qt + j * m, qt + (j - 1) * m, m);
+    for (int64_t j = 1; j < s; ++j) add_into(suf + j * m, qt + (j - 1) * m + 1, m - 1);
+}
+
+RTD_CLONES void wsf_tasks(const WsfArgs &a, int64_t begin, int64_t end) {
+    const int64_t n_ch = a.n_ch, h = a.h, w = a.w, planes = n_ch + 1;
+    std::vector<float> cur_b, nxt_b, vpre_b, q, qt, suf, inv;
+    for (int64_t task = begin; task < end; ++task) {
+        const int64_t n = a.task_n[task], i = a.task_i[task];
+        const int64_t b0 = a.task_b0[task], b1 = a.task_b1[task];
+        const int64_t s = a.size_min + i * a.size_step, r = s / 2;
+        const int64_t nb = (w + 2 * r + s - 1) / s, m = s * nb;
+        const int64_t plane = s * w;
+        cur_b.resize(static_cast<size_t>(planes * plane));
+        nxt_b.resize(static_cast<size_t>(planes * plane));
+        vpre_b.resize(static_cast<size_t>(planes * plane));
+        q.assign(static_cast<size_t>(nb * s), 0.0f);
+        qt.resize(static_cast<size_t>(s * m));
+        suf.resize(static_cast<size_t>(s * m));
+        inv.resize(static_cast<size_t>(s * m));
+        float *cur = cur_b.data(), *nxt = nxt_b.data(), *vpre = vpre_b.data();
+        for (int64_t p = 0; p < planes; ++p)
+            wsf_source_rows(a, n, i, p, b0 * s - r, s, cur + p * plane);
+        for (int64_t b = b0; b < b1; ++b) {
+            for (int64_t p = 0; p < planes; ++p) {  // vertical: suffix sums, next block's prefix
+                float *cp = cur + p * plane, *np_ = nxt + p * plane, *vp = vpre + p * plane;
+                wsf_source_rows(a, n, i, p, (b + 1) * s - r, s, np_);
+                for (int64_t t = s - 2; t >= 0; --t) add_into(cp + t * w, cp + (t + 1) * w, w);
+                std::copy(np_, np_ + w, vp);
+                for (int64_t t = 1; t < s - 1; ++t) add3(vp + t * w, vp + (t - 1) * w, np_ + t * w, w);
+            }
+            wsf_horizontal(cur + n_ch * plane, vpre + n_ch * plane, s, r, w, nb, q.data(),
+                           qt.data(), suf.data());
+            for (int64_t x = 0; x < s * m; ++x) {  // 1 / denominator where > 0, else 0
+                float d = suf[x];
+                float safe = d > 0.0f ? d : 1.0f;
+                float v = 1.0f / safe;
+                inv[x] = d > 0.0f ? v : 0.0f;
+            }
+            for (int64_t c = 0; c < n_ch; ++c) {
+                wsf_horizontal(cur + c * plane, vpre + c * plane, s, r, w, nb, q.data(), qt.data(),
+                               suf.data());
+                for (int64_t t = 0; t < std::min(s, h - b * s); ++t) {
+                    float *out_row = a.out + ((n * a.count * n_ch + i * n_ch + c) * h + b * s + t) * w;
+                    const float *num_t = suf.data() + t * nb, *inv_t = inv.data() + t * nb;
+                    for (int64_t j = 0; j < s; ++j)
+                        for (int64_t bb = 0; bb < (w - j + s - 1) / s; ++bb)
+                            out_row[bb * s + j] = num_t[j * m + bb] * inv_t[j * m + bb];
+                }
+            }
+            std::swap(cur, nxt);
+        }
+    }
+}
+
+void weight_sharing_filter_run(const Tensor *in, Tensor *out, const int64_t *attrs, int threads) {
+    WsfArgs a{in[0].data, in[1].data, out[0].data, in[0].dims[1], in[0].dims[2], in[0].dims[3],
+              attrs[2], attrs[0], attrs[1], {}, {}, {}, {}};
+    for (int64_t i = 0; i < a.count; ++i) {  // kernels/weight_sharing_filter.py _tasks
+        const int64_t s = a.size_min + i * a.size_step;
+        const int64_t per = std::max<int64_t>(1, static_cast<int64_t>(std::nearbyint(double(STRIP_ROWS) / double(s))));
+        const int64_t blocks = (a.h + s - 1) / s;
+        for (int64_t n = 0; n < in[0].dims[0]; ++n)
+            for (int64_t b0 = 0; b0 < blocks; b0 += per) {
+                a.task_n.push_back(n);
+                a.task_i.push_back(i);
+                a.task_b0.push_back(b0);
+                a.task_b1.push_back(std::min(b0 + per, blocks));
+            }
+    }
+    parallel_for(static_cast<int64_t>(a.task_n.size()), threads,
+                 [&](int64_t b, int64_t e) { wsf_tasks(a, b, e); });
+}
+
 /* ------------------------------------------------------------------ the table */
 
 const char *const KERNEL_ATTRS[] = {"kernel_size", "dilation"};
@@ -632,6 +787,8 @@ const char *const SKA_IN[] = {"image", "logits"};
 const char *const KF_IN[] = {"images", "logits"};
 const char *const AF_IN[] = {"d_ta", "d_low", "alpha"};
 const char *const RP_IN[] = {"previous", "motion"};
+const char *const WSF_ATTRS[] = {"size_min", "size_step", "count"};
+const char *const WSF_IN[] = {"image", "weights"};
 const char *const TA_IN[] = {"current", "motion", "depth", "normal", "ta_state",
                              "geometry_state", "reset", "depth_tolerance", "normal_threshold",
                              "min_alpha", "max_history"};
@@ -645,6 +802,8 @@ const OpDef OPS[] = {
     {"Reproject", 2, 1, R4, RP_IN, nullptr, 0, reproject_shapes, reproject_run},
     {"TemporalAccumulation", 11, 4, TA_RANKS, TA_IN, nullptr, 0, temporal_accumulation_shapes,
      temporal_accumulation_run},
+    {"WeightSharingFilter", 2, 1, R4, WSF_IN, WSF_ATTRS, 3, weight_sharing_filter_shapes,
+     weight_sharing_filter_run},
 };
 
 }  // namespace
