@@ -14,7 +14,7 @@ Two compiled parts, both optional, so that an install without a compiler still w
   rtdenoise/runtime/bridge/librtdenoise_ops.so (.dylib, rtdenoise_ops.dll); without it the
   numba kernels run (runtime/bridge/native_cpp.py). Built as a plain shared library, not a
   Python module: `BuildExt` names the file and picks the flags (no -march: a wheel's x86-64
-  baseline; kernels.cpp adds an AVX2 clone of each row loop chosen at load time).
+  baseline; kernels_common.h adds AVX2 and AVX-512 clones of each row loop, chosen at load).
 """
 
 import os
@@ -34,8 +34,8 @@ BRIDGE = Extension(
 
 NATIVE_OPS = Extension(
     "rtdenoise.runtime.bridge.rtdenoise_ops",
-    sources=["runtime/bridge/native_ops/library.cpp", "runtime/bridge/native_ops/kernels.cpp"],
-    depends=["runtime/bridge/native_ops/kernels.h", "runtime/bridge/native_ops/ort_abi.h"],
+    sources=[f"runtime/bridge/native_ops/{f}.cpp" for f in ("library", "kernels", "filters")],
+    depends=[f"runtime/bridge/native_ops/{f}.h" for f in ("kernels", "kernels_common", "ort_abi")],
     language="c++",
     optional=True,
 )
@@ -64,10 +64,10 @@ class BuildExt(build_ext):
         if ext.name == NATIVE_OPS.name:
             if self.compiler.compiler_type == "msvc":
                 ext.extra_compile_args = ["/std:c++17", "/O2", "/fp:precise", "/EHsc"]
-            else:  # gcc, clang: no fused multiply-adds (the numba kernels' exact arithmetic)
+            else:  # gcc, clang: no fused multiply-adds but where filters.cpp asks (as numba)
                 ext.extra_compile_args = [
                     "-std=c++17", "-O3", "-ffp-contract=off", "-fno-math-errno",
-                    "-fvisibility=hidden", "-pthread",
+                    "-fno-trapping-math", "-fvisibility=hidden", "-pthread",
                 ]  # fmt: skip
                 ext.extra_link_args = ["-pthread"]
         super().build_extension(ext)

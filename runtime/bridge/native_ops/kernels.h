@@ -52,13 +52,17 @@ struct OpDef {
 const OpDef *op_table(int *count);
 
 /* Split [0, rows) into contiguous chunks run by up to `threads` threads (the caller's one of
- * them); fn(begin, end). Falls back to one thread if threads cannot be started. */
-void parallel_rows(int64_t rows, int threads, void (*fn)(void *, int64_t, int64_t), void *ctx);
+ * them), at most one per GRAIN of `work` (about the multiply-adds of the call: a thread
+ * started for less costs more than it saves); fn(begin, end). Falls back to fewer threads
+ * if threads cannot be started; an exception of fn is rethrown on the caller's thread. */
+constexpr int64_t GRAIN = int64_t(1) << 16;
+void parallel_rows(int64_t rows, int threads, int64_t work, void (*fn)(void *, int64_t, int64_t),
+                   void *ctx);
 
 template <class F>
-void parallel_for(int64_t rows, int threads, F &&f) {
+void parallel_for(int64_t rows, int threads, int64_t work, F &&f) {
     parallel_rows(
-        rows, threads,
+        rows, threads, work,
         [](void *ctx, int64_t b, int64_t e) { (*static_cast<F *>(ctx))(b, e); },
         static_cast<void *>(&f));
 }
