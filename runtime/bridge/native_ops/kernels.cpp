@@ -4,7 +4,14 @@
  * bit (a history-validity decision that flipped between forms would change a pixel's whole
  * history); the thread split every op uses; the table of ops (filters.cpp holds the others).
  */
+#if defined(__unix__) || defined(__APPLE__)
+#include <pthread.h>
+#endif
+
+#include <condition_variable>
 #include <exception>
+#include <functional>
+#include <mutex>
 #include <thread>
 
 #include "kernels_common.h"
@@ -26,6 +33,84 @@ void weight_sharing_filter_run(const Tensor *in, Tensor *out, const int64_t *att
 
 /* ------------------------------------------------------------------ threads */
 
+namespace {
+
+/* The threads that run the chunks after the caller's first: started once, on first use, and
+ * kept (a thread started per call waits for the scheduler on a busy machine: measured,
+ * TemporalAccumulation at 720p on 2 threads ran slower than on 1). One caller at a time
+ * uses them; a second caller meanwhile runs its chunks on threads of its own. A forked child
+ * (Python's multiprocessing) has none of the parent's threads: it starts a pool anew. */
+class Pool {
+  public:
+    static Pool &instance() {
+        static bool hooked = [] {
+#if defined(__unix__) || defined(__APPLE__)
+            pthread_atfork(nullptr, nullptr, [] { current() = new Pool(); });  // old one leaked
+#endif
+            return true;
+        }();
+        (void)hooked;
+        return *current();
+    }
+
+    /* Run chunk(t) for t in [1, team) on the pool; false (nothing run) if it is busy or
+     * cannot grow to team - 1 workers. */
+    bool run(int64_t team, const std::function<void(int64_t)> &chunk, std::function<void()> own) {
+        std::unique_lock<std::mutex> busy(use_, std::try_to_lock);
+        if (!busy.owns_lock()) return false;
+        try {
+            while (static_cast<int64_t>(workers_.size()) < team - 1)
+                workers_.emplace_back([this, i = workers_.size()] { loop(static_cast<int64_t>(i)); });
+        } catch (...) {
+            if (static_cast<int64_t>(workers_.size()) < team - 1) return false;
+        }
+        {
+            std::lock_guard<std::mutex> lock(m_);
+            job_ = &chunk;
+            active_ = team - 1;
+            pending_ = team - 1;
+            ++generation_;
+        }
+        wake_.notify_all();
+        own();
+        std::unique_lock<std::mutex> lock(m_);
+        done_.wait(lock, [this] { return pending_ == 0; });
+        job_ = nullptr;
+        return true;
+    }
+
+  private:
+    static Pool *&current() {
+        static Pool *pool = new Pool();  // never destroyed: workers may outlive static dtors
+        return pool;
+    }
+
+    void loop(int64_t index) {
+        uint64_t seen = 0;
+        std::unique_lock<std::mutex> lock(m_);
+        for (;;) {
+            wake_.wait(lock, [&] { return generation_ != seen; });
+            seen = generation_;
+            if (index >= active_) continue;  // not needed this time
+            const std::function<void(int64_t)> *job = job_;
+            lock.unlock();
+            (*job)(index + 1);
+            lock.lock();
+            if (--pending_ == 0) done_.notify_one();
+        }
+    }
+
+    std::mutex use_;  // one caller at a time
+    std::mutex m_;
+    std::condition_variable wake_, done_;
+    std::vector<std::thread> workers_;
+    const std::function<void(int64_t)> *job_ = nullptr;
+    int64_t active_ = 0, pending_ = 0;
+    uint64_t generation_ = 0;
+};
+
+}  // namespace
+
 void parallel_rows(int64_t rows, int threads, int64_t work, void (*fn)(void *, int64_t, int64_t),
                    void *ctx) {
     if (rows <= 0) return;
@@ -36,26 +121,25 @@ void parallel_rows(int64_t rows, int threads, int64_t work, void (*fn)(void *, i
     }
     auto bounds = [&](int64_t t) { return rows * t / team; };
     std::vector<std::exception_ptr> errors(static_cast<size_t>(team));
-    auto chunk = [&](int64_t t, int64_t begin, int64_t end) {
+    std::function<void(int64_t)> chunk = [&](int64_t t) {
         try {  // nothing may leave a thread (std::terminate): rethrown on the caller's below
-            fn(ctx, begin, end);
+            fn(ctx, bounds(t), bounds(t + 1));
         } catch (...) {
             errors[static_cast<size_t>(t)] = std::current_exception();
         }
     };
-    std::vector<std::thread> workers;
-    int64_t started = 0;  // workers 1..started run chunks 1..started
-    try {
-        workers.reserve(static_cast<size_t>(team - 1));
-        for (int64_t t = 1; t < team; ++t) {
-            workers.emplace_back(chunk, t, bounds(t), bounds(t + 1));
-            ++started;
+    if (!Pool::instance().run(team, chunk, [&] { chunk(0); })) {
+        std::vector<std::thread> workers;  // the pool is busy: threads of this call's own
+        int64_t started = 1;
+        try {
+            workers.reserve(static_cast<size_t>(team - 1));
+            for (; started < team; ++started) workers.emplace_back(chunk, started);
+        } catch (...) {  // no more threads to be had: the caller runs the chunks left
         }
-    } catch (...) {  // no more threads to be had: the caller runs the chunks left
-        chunk(team - 1, bounds(started + 1), rows);
+        for (int64_t t = started; t < team; ++t) chunk(t);
+        chunk(0);
+        for (auto &w : workers) w.join();
     }
-    chunk(0, 0, bounds(1));
-    for (auto &w : workers) w.join();
     for (auto &e : errors)
         if (e) std::rethrow_exception(e);
 }
