@@ -4,8 +4,8 @@ interleaved run: every op the library holds at each size, and whole frames of de
 Ops: a single-op model per op (default attributes, the spec's example inputs for a
 (1, 3, H, W) image), one ONNX Runtime session per path; each round runs the numba session
 then the C++ one (A B A B ...), after warm-up runs (numba compiles, or loads its cache, on the
-first). Models: `Denoiser(model)` (native-cpp, the default where the library holds every op)
-and `Denoiser(model, fast_kernels="native")` on the same synthetic frames, state carried,
+first). Models: `Denoiser(model, fast_kernels="native-cpp")` and
+`Denoiser(model, fast_kernels="native")` on the same synthetic frames, state carried,
 one frame each in turn with a 100 ms pause after each (as revision_ab.py). Prints markdown
 rows: median (min-max) ms of each path and the ratio numba / C++ (> 1: C++ faster).
 
@@ -76,9 +76,15 @@ def bench_op(op: str, h: int, w: int, rounds: int) -> str:
 
 
 def bench_model(model: str, h: int, w: int, rounds: int, pause: float) -> str:
-    dens = {"numba": Denoiser(model, fast_kernels="native"), "cpp": Denoiser(model)}
-    if dens["cpp"].bridge != "native-cpp":
-        return f"| {model} | {w}x{h} | - | not held by the library ({dens['cpp'].bridge}) | | |"
+    from rtdenoise.runtime.errors import InputError
+
+    try:
+        dens = {
+            "numba": Denoiser(model, fast_kernels="native"),
+            "cpp": Denoiser(model, fast_kernels="native-cpp"),
+        }
+    except InputError as exc:
+        return f"| {model} | {w}x{h} | - | {exc} | | |"
     frames = synthetic_frames(dens["cpp"].required_buffers, 4, h, w)
     for den in dens.values():  # warm-up frame (numba compiles or loads its cache)
         den.process(frames[0])

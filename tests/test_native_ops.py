@@ -1,9 +1,9 @@
 """The C++ custom-op library rtdenoise_ops (runtime/bridge/native_ops/, `native-cpp`): built by
-the install, chosen by default for a model whose every custom op it holds (demo:afn), forced
-off by RTDENOISE_NATIVE_OPS=0 or an explicit bridge, the same numbers as the numba kernels
-over a demo's frames with state, errors as ONNX Runtime statuses naming the op and the cause,
-no Python inside. (Each op against its other forms: test_ops_three_forms.py, test_op_specs.py.)
-Skipped, with the reason, only where the library was not built."""
+the install, chosen by default for a model whose every custom op it holds (afn, wskp; nbg on
+request), forced off by RTDENOISE_NATIVE_OPS=0 or an explicit bridge, the same numbers as the
+numba kernels over a demo's frames with state, errors as ONNX Runtime statuses naming the op
+and the cause, no Python inside. (Each op against its other forms: test_ops_three_forms.py,
+test_op_specs.py.) Skipped, with the reason, only where the library was not built."""
 
 from __future__ import annotations
 
@@ -47,10 +47,12 @@ def test_chosen_for_afn_and_only_where_it_holds_every_op(monkeypatch):
     den = Denoiser("demo:afn")
     assert den.bridge == "native-cpp" and den.fast_kernels
     assert Denoiser("demo:wskp").bridge == "native-cpp"
-    assert Denoiser("demo:nbg").bridge == "native"  # BilateralGrid is not held yet
+    assert Denoiser("demo:nbg").bridge == "native"  # BilateralGrid: held, not yet by default
+    assert Denoiser("demo:nbg", fast_kernels="native-cpp").bridge == "native-cpp"
+    assert Denoiser("demo:affinity").bridge == "native"  # AffinityFilter is not held yet
     assert Denoiser("demo:afn", fast_kernels="native").bridge == "native"  # numba, asked for
-    with pytest.raises(InputError, match="lacks BilateralGrid"):
-        Denoiser("demo:nbg", fast_kernels="native-cpp")
+    with pytest.raises(InputError, match="lacks AffinityFilter, TemporalAffinityFilter"):
+        Denoiser("demo:affinity", fast_kernels="native-cpp")
     monkeypatch.setenv(native_cpp.ENV_SWITCH, "0")
     assert Denoiser("demo:afn").bridge == "native"
     assert fast_bridge.choose_bridge(AFN_OPS) == "native"
@@ -59,13 +61,13 @@ def test_chosen_for_afn_and_only_where_it_holds_every_op(monkeypatch):
     assert fast_bridge.choose_bridge(None) == "native"  # ops unknown: the numba bridge
 
 
-@pytest.mark.parametrize("family", ["afn", "wskp"])
+@pytest.mark.parametrize("family", ["afn", "wskp", "nbg"])
 def test_demo_native_cpp_matches_numba_over_eight_frames_with_state(family):
     """The committed sequence through the demo, state fed back, a reset at frame 5: the C++
     path and the numba path agree within 1e-5 on every frame and in the state."""
     from rtdenoise.runtime.sequences.frames import find_frames, read_frame
 
-    cpp = Denoiser(f"demo:{family}")
+    cpp = Denoiser(f"demo:{family}", fast_kernels="native-cpp")
     numba = Denoiser(f"demo:{family}", fast_kernels="native")
     assert cpp.bridge == "native-cpp"
     frames = [read_frame(p).buffers for p in find_frames(sample_sequences()[0])][:8]

@@ -261,7 +261,8 @@ print("ok", fast_bridge.CALLS["KernelApply"])
 
 # ------------------------------------------------- the C++ library rtdenoise_ops (native-cpp)
 
-# The ops the library holds (runtime/bridge/native_ops/kernels.cpp): demo:afn's and demo:wskp's.
+# The ops the library holds (runtime/bridge/native_ops/kernels.cpp): every op of demo:afn,
+# demo:wskp and demo:nbg.
 CPP_OPS = [
     "KernelApply",
     "SoftmaxKernelApply",
@@ -270,6 +271,7 @@ CPP_OPS = [
     "Reproject",
     "TemporalAccumulation",
     "WeightSharingFilter",
+    "BilateralGrid",
 ]
 
 

@@ -60,8 +60,9 @@ def default_bridge() -> str:
 
 def choose_bridge(ops: Iterable[str] | None) -> str:
     """The bridge for a model whose rtdenoise ops are `ops` (None: not known): "native-cpp"
-    when the C++ library is built and holds all of them (and RTDENOISE_NATIVE_OPS does not
-    turn it off), else the best numba bridge (`default_bridge`)."""
+    when the C++ library is built and holds all of them, none slower than numba
+    (`native_cpp.NOT_BY_DEFAULT`), and RTDENOISE_NATIVE_OPS does not turn it off; else the
+    best numba bridge (`default_bridge`)."""
     from . import native_cpp
 
     if (
@@ -69,6 +70,7 @@ def choose_bridge(ops: Iterable[str] | None) -> str:
         and not native_cpp.disabled_by_env()
         and native_cpp.available()
         and not native_cpp.missing_ops(ops)
+        and not native_cpp.NOT_BY_DEFAULT.intersection(ops)
     ):
         return "native-cpp"
     return default_bridge()

@@ -8,7 +8,8 @@ host loads the same file. From Python, this module finds it, says which ops it h
 sets its thread count around a run (`threads`), as `numba_threads` does for numba.
 
 It holds only some ops (`covered_ops`); the chooser (`bridge.register_fast_kernels`) picks it
-for a model only when it holds every rtdenoise op of that model. No numba, no torch here.
+for a model only when it holds every rtdenoise op of that model, none of them NOT_BY_DEFAULT.
+No numba, no torch here.
 """
 
 from __future__ import annotations
@@ -29,6 +30,11 @@ FILE = {"win32": "rtdenoise_ops.dll", "darwin": "librtdenoise_ops.dylib"}.get(
 # "0" (or "off", "numba"): never choose this library by default (the numba kernels run).
 ENV_SWITCH = "RTDENOISE_NATIVE_OPS"
 ABI = 1  # rtdenoise_ops_abi() of the library this module speaks to
+# Ops the library holds but the default does not use yet: measured slower than their numba
+# kernel at 720p (benchmarks/README.md, "The C++ custom-op library"): BilateralGrid 0.72-0.85x,
+# demo:nbg's frame 0.73-0.84x. A model with one of them keeps the numba path unless it asks for
+# fast_kernels="native-cpp" (a C or C++ host gets them: faster than the portable bodies).
+NOT_BY_DEFAULT = frozenset({"BilateralGrid"})
 
 
 class NativeOpsError(RuntimeError):

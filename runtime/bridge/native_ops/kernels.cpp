@@ -8,6 +8,7 @@
 #include <pthread.h>
 #endif
 
+#include <atomic>
 #include <condition_variable>
 #include <exception>
 #include <functional>
@@ -29,6 +30,8 @@ std::string adaptive_fusion_shapes(const Tensor *in, const int64_t *attrs, Shape
 void adaptive_fusion_run(const Tensor *in, Tensor *out, const int64_t *attrs, int threads);
 std::string weight_sharing_filter_shapes(const Tensor *in, const int64_t *attrs, Shape *out);
 void weight_sharing_filter_run(const Tensor *in, Tensor *out, const int64_t *attrs, int threads);
+std::string bilateral_grid_shapes(const Tensor *in, const int64_t *attrs, Shape *out);
+void bilateral_grid_run(const Tensor *in, Tensor *out, const int64_t *attrs, int threads);
 }  // namespace filters
 
 /* ------------------------------------------------------------------ threads */
@@ -119,13 +122,19 @@ void parallel_rows(int64_t rows, int threads, int64_t work, void (*fn)(void *, i
         fn(ctx, 0, rows);
         return;
     }
-    auto bounds = [&](int64_t t) { return rows * t / team; };
+    // Chunks taken in turn from a counter, 8 per thread: on a loaded machine one thread gets
+    // less of a core, and with one fixed half each the others waited for it (BilateralGrid at
+    // 720p ran slower on 2 threads than on 1). The split does not change any number.
+    const int64_t chunks = std::min<int64_t>(rows, 8 * team);
+    auto bounds = [&](int64_t c) { return rows * c / chunks; };
+    std::atomic<int64_t> next{0};
     std::vector<std::exception_ptr> errors(static_cast<size_t>(team));
     std::function<void(int64_t)> chunk = [&](int64_t t) {
         try {  // nothing may leave a thread (std::terminate): rethrown on the caller's below
-            fn(ctx, bounds(t), bounds(t + 1));
+            for (int64_t c = next++; c < chunks; c = next++) fn(ctx, bounds(c), bounds(c + 1));
         } catch (...) {
             errors[static_cast<size_t>(t)] = std::current_exception();
+            next = chunks;  // the others stop too
         }
     };
     if (!Pool::instance().run(team, chunk, [&] { chunk(0); })) {
@@ -341,6 +350,8 @@ const char *const AF_IN[] = {"d_ta", "d_low", "alpha"};
 const char *const RP_IN[] = {"previous", "motion"};
 const char *const WSF_ATTRS[] = {"size_min", "size_step", "count"};
 const char *const WSF_IN[] = {"image", "weights"};
+const char *const BG_ATTRS[] = {"cell_size", "grid_depth"};
+const char *const BG_IN[] = {"image", "guide"};
 const char *const TA_IN[] = {"current", "motion", "depth", "normal", "ta_state",
                              "geometry_state", "reset", "depth_tolerance", "normal_threshold",
                              "min_alpha", "max_history"};
@@ -356,6 +367,7 @@ const OpDef OPS[] = {
      temporal_accumulation_run},
     {"WeightSharingFilter", 2, 1, R4, WSF_IN, WSF_ATTRS, 3, weight_sharing_filter_shapes,
      weight_sharing_filter_run},
+    {"BilateralGrid", 2, 1, R4, BG_IN, BG_ATTRS, 2, bilateral_grid_shapes, bilateral_grid_run},
 };
 
 }  // namespace
