@@ -125,6 +125,15 @@ def run_with_progress(
         )
 
 
+# How the model's custom ops ran (Denoiser.bridge), as the timing line says it.
+KERNELS_LABEL = {
+    "native-cpp": "native-cpp (C++ rtdenoise_ops)",
+    "native": "native (numba kernels)",
+    "extensions": "extensions (numba kernels through onnxruntime-extensions)",
+    "": "portable ONNX bodies",
+}
+
+
 def print_report(report: dict[str, Any], model: str, console: Console) -> None:
     """Metrics table (per-frame rows when few frames, and the mean) and a timing line."""
     scored = [r for r in report["frames"] if r["input"] is not None]
@@ -158,9 +167,11 @@ def print_report(report: dict[str, Any], model: str, console: Console) -> None:
     if t["denoise"] is None:
         console.print(f"{where}: all kept from an earlier run (--resume)", soft_wrap=True)
         return
+    kernels = report.get("kernels")
     console.print(
         f"{where}{f' ({kept} kept from an earlier run)' if kept else ''}; median per frame: "
-        f"read {t['read']:.1f} ms, denoise {t['denoise']:.1f} ms, write {t['write']:.1f} ms",
+        f"read {t['read']:.1f} ms, denoise {t['denoise']:.1f} ms, write {t['write']:.1f} ms"
+        + (f"; custom ops: {KERNELS_LABEL.get(kernels, kernels)}" if kernels is not None else ""),
         soft_wrap=True,
     )
 

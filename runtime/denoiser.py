@@ -63,11 +63,14 @@ class Denoiser:
     """Run a contract-v1 ONNX denoiser frame by frame, keeping its temporal state.
 
     model: a path to an .onnx file, `demo:<family>`, or the serialized model bytes.
-    fast_kernels: register the native (numba) kernels of the rtdenoise custom ops; False runs
-        their portable ONNX function bodies, inlined by ONNX Runtime. A string picks how ONNX
-        Runtime reaches the kernels: "native" (the compiled bridge, zero-copy; what True uses
-        where it was built) or "extensions" (onnxruntime-extensions, which copies every input
-        and output); `bridge` says which one runs.
+    fast_kernels: register the fast kernels of the rtdenoise custom ops; False runs their
+        portable ONNX function bodies, inlined by ONNX Runtime. True picks the fastest path
+        that holds every op of the model: "native-cpp" (the C++ library rtdenoise_ops, no
+        Python in the run) where it was built and holds them all and the environment
+        variable RTDENOISE_NATIVE_OPS is not "0", else the numba kernels through "native"
+        (the compiled bridge, zero-copy) or "extensions" (onnxruntime-extensions, which
+        copies every input and output). A string asks for one of these; "native" forces the
+        numba kernels. `bridge` says which one runs.
     threads: threads of ONNX Runtime's intra-op pool and of the fast (numba) kernels, which
         run between its ops (None: each library's default, all cores). The kernels use one
         thread on frames below `serial_below` pixels (padded; default SERIAL_KERNELS_BELOW).
@@ -116,7 +119,7 @@ class Denoiser:
         relearn_at_cuts: bool = False,
         overrides: Mapping[str, float] | None = None,
     ) -> None:
-        self.source, payload = checked_model(model)
+        self.source, payload, ops = checked_model(model)
         opened = open_session(
             payload,
             self.source,
@@ -126,6 +129,7 @@ class Denoiser:
             spinning=spinning,
             providers=providers,
             shared_arena=shared_arena,
+            ops=ops,
         )
         self._session = opened.session
         self.bridge = opened.bridge  # how ONNX Runtime reaches the fast kernels, "" for none
@@ -406,8 +410,12 @@ class Denoiser:
             with deferred_signals(), placed(1) if self.pin_threads else nullcontext():
                 return run(*args)
         team = kernel_thread_count(self._state.padded, self.threads, self.serial_below)
-        where = placed(team) if self.pin_threads else nullcontext()
-        with deferred_signals(), bridge.raise_kernel_errors(), bridge.numba_threads(team), where:
+        # The C++ kernels' threads start inside the run and inherit the caller's affinity:
+        # pinning the caller to one CPU would put them all there.
+        pin = self.pin_threads and self.bridge != "native-cpp"
+        where = placed(team) if pin else nullcontext()
+        threads = bridge.kernel_threads(self.bridge, team)
+        with deferred_signals(), bridge.raise_kernel_errors(), threads, where:
             return run(*args)
 
     def _note_state_nonfinite(self, bad: int) -> None:

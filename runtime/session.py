@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import onnxruntime as ort
@@ -24,7 +24,7 @@ from .errors import InputError
 from .external_data import check_external_data
 from .memory import share_cpu_arena
 from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities
-from .static_check import check_custom_nodes
+from .static_check import check_custom_nodes, custom_op_types
 
 ModelSource = str | os.PathLike | bytes
 Provider = str | tuple[str, dict[str, Any]]
@@ -80,20 +80,29 @@ def resolve_model(spec: str | os.PathLike) -> Path:
     return path
 
 
-def checked_model(model: ModelSource) -> tuple[str, str | bytes]:
-    """(the name errors give it, what ONNX Runtime loads) of a model given as a path,
-    `demo:<family>` or the serialized bytes, after the checks every file passes: its external
-    data inside its folder, its custom ops' attributes consistent with the recorded shapes."""
+class CheckedModel(NamedTuple):
+    """A model that passed the checks: the name errors give it, what ONNX Runtime loads, and
+    the op types of its rtdenoise nodes (what a fast path must hold)."""
+
+    source: str
+    payload: str | bytes
+    ops: frozenset[str]
+
+
+def checked_model(model: ModelSource) -> CheckedModel:
+    """A model given as a path, `demo:<family>` or the serialized bytes, after the checks
+    every file passes: its external data inside its folder, its custom ops' attributes
+    consistent with the recorded shapes."""
     if isinstance(model, (bytes, bytearray)):
         source, payload = "<model bytes>", bytes(model)
         check_external_data(payload)
         check_custom_nodes(payload, source)
-        return source, payload
+        return CheckedModel(source, payload, custom_op_types(payload))
     path = resolve_model(model)
-    data = path.read_bytes()  # read once for both checks
+    data = path.read_bytes()  # read once for the checks
     check_external_data(path, data)  # every external data file inside the model's folder
     check_custom_nodes(data, str(path))  # attributes vs shapes
-    return str(path), str(path)
+    return CheckedModel(str(path), str(path), custom_op_types(data))
 
 
 def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provider]:
@@ -124,14 +133,17 @@ def provider_names(providers: Sequence[Provider]) -> list[str]:
     return [p if isinstance(p, str) else p[0] for p in providers]
 
 
-def register_fast_kernels(options: ort.SessionOptions, bridge: str | None) -> str:
-    """Register the fast kernels of the rtdenoise custom ops through `bridge` (None: the best
-    available); the bridge used, or "" with a warning where numba (or, for the extensions
-    bridge, onnxruntime-extensions) is not installed: the portable bodies run then."""
+def register_fast_kernels(
+    options: ort.SessionOptions, bridge: str | None, ops: frozenset[str] | None = None
+) -> str:
+    """Register the fast kernels of the rtdenoise custom ops `ops` (the model's) through
+    `bridge` (None: the best available for them); the bridge used, or "" with a warning where
+    numba (or, for the extensions bridge, onnxruntime-extensions) is not installed: the
+    portable bodies run then."""
     try:
         from . import bridge as bridges
 
-        return bridges.register_fast_kernels(options, bridge)
+        return bridges.register_fast_kernels(options, bridge, ops)
     except ModuleNotFoundError as exc:
         if exc.name and exc.name.split(".")[0] in ("onnxruntime_extensions", "numba"):
             warnings.warn(
@@ -170,9 +182,10 @@ def open_session(
     spinning: bool | None,
     providers: Sequence[Provider] | str | None,
     shared_arena: bool,
+    ops: frozenset[str] | None = None,
 ) -> Session:
-    """Load `payload` (a path or the model bytes; `source` names it in errors) with the
-    options `Denoiser` documents."""
+    """Load `payload` (a path or the model bytes; `source` names it in errors; `ops` its
+    rtdenoise op types, which pick the fast path) with the options `Denoiser` documents."""
     options = ort.SessionOptions()
     # Warnings at load are about graph internals (e.g. run-time option initializers that
     # are graph inputs by design: "will not be treated as constant"); errors still show.
@@ -187,7 +200,7 @@ def open_session(
     bridge = ""
     if fast_kernels:
         bridge = register_fast_kernels(
-            options, fast_kernels if isinstance(fast_kernels, str) else None
+            options, fast_kernels if isinstance(fast_kernels, str) else None, ops
         )
     if spinning is None and bridge:
         spinning = False  # idle ORT workers would spin while a kernel needs the cores

@@ -89,6 +89,30 @@ def _graph(data: bytes) -> memoryview | None:
     return None
 
 
+def custom_op_types(data: bytes) -> frozenset[str]:
+    """The op types of the main graph's nodes of the rtdenoise domain (empty for a file that
+    is not a model): what a fast path must hold to run the model."""
+    try:
+        graph = _graph(data)
+        if graph is None or DOMAIN.encode() not in bytes(graph):
+            return frozenset()
+        found = set()
+        for n, v in fields(graph):
+            if n != _GRAPH_NODE or not isinstance(v, memoryview):
+                continue
+            op, domain = "", ""
+            for fn, fv in fields(v):
+                if fn == _NODE_OP:
+                    op = _text(fv)
+                elif fn == _NODE_DOMAIN:
+                    domain = _text(fv)
+            if domain == DOMAIN:
+                found.add(op)
+        return frozenset(found)
+    except Malformed:
+        return frozenset()
+
+
 def check_custom_nodes(data: bytes, source: str) -> int:
     """InputError naming the model, the node and the problem when a custom node's int
     attributes contradict its inputs' recorded shapes; returns the number of nodes checked."""

@@ -37,9 +37,12 @@ def kernel_apply_model(**attrs: int) -> onnx.ModelProto:
     return model
 
 
-def test_the_install_built_it_and_it_is_the_default():
+def test_the_install_built_it_and_it_is_the_default(monkeypatch):
+    """The default of the numba kernels (the C++ library, where it holds a model's ops, is
+    chosen before them: test_native_ops.py)."""
     assert native.library_path() is not None, "pip install did not build the bridge"
     assert native.available() and fast_bridge.default_bridge() == "native"
+    monkeypatch.setenv("RTDENOISE_NATIVE_OPS", "0")
     assert Denoiser("demo:wskp").bridge == "native"
     assert Denoiser("demo:wskp", fast_kernels="extensions").bridge == "extensions"
     assert Denoiser("demo:wskp", fast_kernels=False).bridge == ""
@@ -105,6 +108,7 @@ def test_a_node_without_a_declared_attribute_is_a_python_error():
 
 
 def test_without_the_built_bridge_the_kernels_fall_back_with_one_warning(monkeypatch):
+    monkeypatch.setenv("RTDENOISE_NATIVE_OPS", "0")  # the numba kernels' bridges, not the C++
     monkeypatch.setattr(native, "_bridge", None)
     monkeypatch.setattr(native, "library_path", lambda: None)
     monkeypatch.setattr(fast_bridge, "_fallback_warned", False)
@@ -121,7 +125,8 @@ def test_without_the_built_bridge_the_kernels_fall_back_with_one_warning(monkeyp
 
 
 WITHOUT_EXTENSIONS = """
-import sys, warnings
+import os, sys, warnings
+os.environ["RTDENOISE_NATIVE_OPS"] = "0"  # the numba kernels' bridges, not the C++ library
 sys.modules["onnxruntime_extensions"] = None  # `import onnxruntime_extensions` now fails
 import numpy as np
 from rtdenoise.runtime import Denoiser

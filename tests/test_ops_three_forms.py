@@ -18,6 +18,7 @@ import torch
 from op_forms import RTOL, all_forms, assert_forms_agree, rel_err, session
 
 from rtdenoise.export import ops as eops
+from rtdenoise.models.ops import TORCH_OPS
 from rtdenoise.models.ops.adaptive_fusion import adaptive_fusion
 from rtdenoise.models.ops.kernel_apply import kernel_apply
 from rtdenoise.runtime import bridge as fast_bridge
@@ -256,3 +257,50 @@ print("ok", fast_bridge.CALLS["KernelApply"])
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == "ok 2"
+
+
+# ------------------------------------------------- the C++ library rtdenoise_ops (native-cpp)
+
+# The ops the library holds (runtime/bridge/native_ops/kernels.cpp): every op of demo:afn,
+# demo:wskp and demo:nbg.
+CPP_OPS = [
+    "KernelApply",
+    "SoftmaxKernelApply",
+    "KernelFusion",
+    "AdaptiveFusion",
+    "Reproject",
+    "TemporalAccumulation",
+    "WeightSharingFilter",
+    "BilateralGrid",
+]
+
+
+@pytest.mark.parametrize("op", CPP_OPS)
+def test_native_cpp_form_matches_torch_and_numba(op):
+    """Every example call of the op (each attribute set, each example shape and a 64x96
+    frame): the C++ kernel, run by ONNX Runtime on a model without the function body, is
+    within 1e-5 of the torch form and of the numba kernel in every output."""
+    from rtdenoise.ops import get_spec
+    from rtdenoise.runtime.bridge import native_cpp
+
+    reason = native_cpp.unavailable_reason()
+    if reason is not None:
+        pytest.skip(f"the C++ library was not built: {reason}")
+    assert op in native_cpp.covered_ops()
+    spec = get_spec(op)
+    rng = np.random.default_rng(11)
+    for attrs in spec.attr_sets():
+        for shape in (*spec.example_shapes, (1, 3, 64, 96)):
+            inputs = spec.example_inputs(shape, attrs, rng)
+            feed = dict(zip(spec.input_names, inputs, strict=True))
+            cpp = session(op, tuple(sorted(attrs.items())), "native-cpp").run(None, feed)
+            numba = KERNELS[op](*inputs, **attrs)
+            numba = numba if isinstance(numba, tuple) else (numba,)
+            with torch.no_grad():
+                ref = TORCH_OPS[op].reference(*[torch.from_numpy(x) for x in inputs], **attrs)
+            ref = ref if isinstance(ref, tuple | list) else (ref,)
+            for o, (a, b, t) in enumerate(zip(cpp, numba, ref, strict=True)):
+                where = (op, attrs, shape, o)
+                assert a.shape == b.shape and a.dtype == np.float32, where
+                assert rel_err(a, b) <= 1e-5, (*where, "numba", rel_err(a, b))
+                assert rel_err(a, t.numpy()) <= 1e-5, (*where, "torch", rel_err(a, t.numpy()))

@@ -21,6 +21,13 @@ CPUS = placement.allowed_cpus()
 multi_cpu = pytest.mark.skipif(len(CPUS) < 2, reason="needs thread affinity and two CPUs")
 
 
+@pytest.fixture(autouse=True)
+def numba_path(monkeypatch):
+    """The numba kernels' thread placement: their path, not the C++ library's (which demo:wskp and
+    demo:afn run on by default; its threads: test_native_ops.py)."""
+    monkeypatch.setenv("RTDENOISE_NATIVE_OPS", "0")
+
+
 def affinity_of(tid: int) -> set[int]:
     return os.sched_getaffinity(tid)
 

@@ -18,6 +18,13 @@ from rtdenoise.runtime.session import ALLOW_SPINNING, kernel_thread_count
 MODEL = "demo:wskp"
 
 
+@pytest.fixture(autouse=True)
+def numba_path(monkeypatch):
+    """The numba kernels' thread counts: their path, not the C++ library's (which demo:wskp and
+    demo:afn run on by default; its threads: test_native_ops.py)."""
+    monkeypatch.setenv("RTDENOISE_NATIVE_OPS", "0")
+
+
 def frame(den: Denoiser, h: int = 16, w: int = 24, seed: int = 0) -> dict[str, np.ndarray]:
     return synthetic_frames(den.required_buffers, 1, h, w, seed=seed)[0]
 

@@ -1,8 +1,14 @@
-"""How ONNX Runtime reaches the fast kernels (`runtime/kernels/`): the chooser of the bridge.
+"""How ONNX Runtime reaches the fast kernels: the chooser of the bridge.
 
-Two bridges register every `KERNELS` entry as the custom op `rtdenoise::<Name>`, which then
-takes precedence over the model-local function body of the same name (docs/architecture.md,
-"The three forms" and "two bridges"):
+Three ways register fast forms of the ops as the custom ops `rtdenoise::<Name>`, which then
+take precedence over the model-local function body of the same name (docs/architecture.md,
+"The three forms" and "How ONNX Runtime reaches the fast kernels"):
+
+- `native-cpp` (`native_cpp.py`, the C++ library `native_ops/`): the ops' own C++ kernels, no
+  Python in the run; chosen by default for a model when it was built and holds every
+  rtdenoise op of that model (`RTDENOISE_NATIVE_OPS=0` or an explicit bridge turns it off);
+
+and two bridges to the numba kernels of `runtime/kernels/`, for every `KERNELS` entry:
 
 - `native` (`native.py` + the compiled `_ort_bridge.c`): ONNX Runtime hands the kernels its
   own buffers, nothing is copied; the default wherever it was built;
@@ -18,14 +24,15 @@ from __future__ import annotations
 
 import importlib
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
 
 import onnxruntime as ort
 
 from .calls import CALLS, KernelError, raise_kernel_errors, take_kernel_error
 
-BRIDGES = ("native", "extensions")
+BRIDGES = ("native-cpp", "native", "extensions")
+NUMBA_BRIDGES = ("native", "extensions")
 
 _fallback_warned = False
 
@@ -51,17 +58,58 @@ def default_bridge() -> str:
     return "extensions"
 
 
-def register_fast_kernels(so: ort.SessionOptions, bridge: str | None = None) -> str:
-    """Make sessions created with `so` run the rtdenoise ops with the numba kernels, through
-    `bridge`: "native" (no copies; the default where it was built) or "extensions"
-    (onnxruntime-extensions' Python ops, which copy every input and output). Returns the
+def choose_bridge(ops: Iterable[str] | None) -> str:
+    """The bridge for a model whose rtdenoise ops are `ops` (None: not known): "native-cpp"
+    when the C++ library is built and holds all of them, none slower than numba
+    (`native_cpp.NOT_BY_DEFAULT`), and RTDENOISE_NATIVE_OPS does not turn it off; else the
+    best numba bridge (`default_bridge`)."""
+    from . import native_cpp
+
+    if (
+        ops is not None
+        and not native_cpp.disabled_by_env()
+        and native_cpp.available()
+        and not native_cpp.missing_ops(ops)
+        and not native_cpp.NOT_BY_DEFAULT.intersection(ops)
+    ):
+        return "native-cpp"
+    return default_bridge()
+
+
+def register_fast_kernels(
+    so: ort.SessionOptions, bridge: str | None = None, ops: Iterable[str] | None = None
+) -> str:
+    """Make sessions created with `so` run the rtdenoise ops with fast kernels, through
+    `bridge`: "native-cpp" (the C++ library's own kernels; ValueError where it is not built or
+    lacks one of `ops`), "native" (the numba kernels, no copies; the default where it was
+    built) or "extensions" (onnxruntime-extensions' Python ops, which copy every input and
+    output); None: `choose_bridge(ops)`, `ops` the model's rtdenoise op types. Returns the
     bridge used. ValueError for another name; ModuleNotFoundError when numba (or, for
     "extensions", onnxruntime-extensions) is not installed."""
     if bridge not in (None, *BRIDGES):
         raise ValueError(f"unknown fast-kernel bridge {bridge!r}; expected one of {BRIDGES}")
-    bridge = bridge or default_bridge()
+    bridge = bridge or choose_bridge(ops)
+    if bridge == "native-cpp":
+        from . import native_cpp
+
+        reason = native_cpp.unavailable_reason()
+        missing = native_cpp.missing_ops(ops or ()) if reason is None else []
+        if reason or missing:
+            raise ValueError(reason or f"the C++ library rtdenoise_ops lacks {', '.join(missing)}")
+        native_cpp.register(so)
+        return bridge
     importlib.import_module(f".{bridge}", __name__).register(so)
     return bridge
+
+
+def kernel_threads(bridge: str, threads: int | None) -> AbstractContextManager[None]:
+    """Run this thread's fast kernels on `bridge` with `threads` threads (None: the kernels'
+    own default, every core): the C++ library's count for "native-cpp", numba's otherwise."""
+    if bridge == "native-cpp":
+        from . import native_cpp
+
+        return native_cpp.threads(threads)
+    return numba_threads(threads)
 
 
 def numba_threads(threads: int | None) -> AbstractContextManager[None]:
@@ -90,7 +138,10 @@ __all__ = [
     "BRIDGES",
     "CALLS",
     "KernelError",
+    "NUMBA_BRIDGES",
+    "choose_bridge",
     "default_bridge",
+    "kernel_threads",
     "numba_threads",
     "raise_kernel_errors",
     "register_fast_kernels",

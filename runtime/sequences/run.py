@@ -427,6 +427,8 @@ def _run_sequence(
         "nonfinite": sum(r["nonfinite"] or 0 for r in rows),
         "skipped": sum(r["skipped"] for r in rows),
         "timing_ms": {k: statistics.median(v) if v else None for k, v in times.items()},
+        # how the custom ops ran: "native-cpp", "native", "extensions", "" (portable bodies)
+        "kernels": getattr(backend, "bridge", None),
     }
 
 

@@ -1,0 +1,112 @@
+"""The `native-cpp` path: the C++ custom-op library `rtdenoise_ops`, no Python in the run.
+
+`native_ops/` (C++17, built by `pip install` where a compiler exists, setup.py) is an ordinary
+ONNX Runtime custom-op library: `RegisterCustomOps` adds its ops to the `rtdenoise` domain,
+and each runs its own forward kernel (the numba kernel's arithmetic, loop for loop) on ORT's
+buffers, with its errors returned as ORT statuses naming the op and the cause. A C or C++
+host loads the same file. From Python, this module finds it, says which ops it holds, and
+sets its thread count around a run (`threads`), as `numba_threads` does for numba.
+
+It holds only some ops (`covered_ops`); the chooser (`bridge.register_fast_kernels`) picks it
+for a model only when it holds every rtdenoise op of that model, none of them NOT_BY_DEFAULT.
+No numba, no torch here.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import sys
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from functools import cache
+from pathlib import Path
+
+import onnxruntime as ort
+
+FILE = {"win32": "rtdenoise_ops.dll", "darwin": "librtdenoise_ops.dylib"}.get(
+    sys.platform, "librtdenoise_ops.so"
+)
+# "0" (or "off", "numba"): never choose this library by default (the numba kernels run).
+ENV_SWITCH = "RTDENOISE_NATIVE_OPS"
+ABI = 1  # rtdenoise_ops_abi() of the library this module speaks to
+# Ops the library holds but the default does not use yet: measured slower than their numba
+# kernel at 720p (benchmarks/README.md, "The C++ custom-op library"): BilateralGrid 0.72-0.85x,
+# demo:nbg's frame 0.73-0.84x. A model with one of them keeps the numba path unless it asks for
+# fast_kernels="native-cpp" (a C or C++ host gets them: faster than the portable bodies).
+NOT_BY_DEFAULT = frozenset({"BilateralGrid"})
+
+
+class NativeOpsError(RuntimeError):
+    """The library cannot be used (not built, or not the one this module expects)."""
+
+
+def library_path() -> str | None:
+    """The built library's file, or None if the package was installed without it."""
+    path = Path(__file__).with_name(FILE)
+    return os.path.realpath(path) if path.is_file() else None
+
+
+@cache
+def _library() -> ctypes.CDLL:
+    path = library_path()
+    if path is None:
+        raise NativeOpsError(f"{FILE} was not built (no C++17 compiler at install?)")
+    lib = ctypes.CDLL(path)  # ORT's dlopen of the same file shares its globals
+    lib.rtdenoise_ops_abi.restype = ctypes.c_int
+    if lib.rtdenoise_ops_abi() != ABI:
+        raise NativeOpsError(f"{path} speaks ABI {lib.rtdenoise_ops_abi()}, expected {ABI}")
+    lib.rtdenoise_ops_names.restype = ctypes.c_char_p
+    lib.rtdenoise_ops_set_threads.argtypes = [ctypes.c_int]
+    lib.rtdenoise_ops_set_threads.restype = ctypes.c_int
+    return lib
+
+
+def unavailable_reason() -> str | None:
+    """Why the library cannot be used (None: it loads)."""
+    try:
+        _library()
+        return None
+    except (NativeOpsError, OSError) as exc:
+        return str(exc)
+
+
+def available() -> bool:
+    return unavailable_reason() is None
+
+
+def covered_ops() -> frozenset[str]:
+    """The rtdenoise ops the library holds (empty when it is not built)."""
+    if not available():
+        return frozenset()
+    names = (_library().rtdenoise_ops_names() or b"").decode()
+    return frozenset(n for n in names.split(",") if n)
+
+
+def missing_ops(ops: Iterable[str]) -> list[str]:
+    """The ops of `ops` that the library does not hold, sorted."""
+    return sorted(set(ops) - covered_ops())
+
+
+def disabled_by_env() -> bool:
+    """True when RTDENOISE_NATIVE_OPS asks for the numba kernels."""
+    return os.environ.get(ENV_SWITCH, "").strip().lower() in ("0", "off", "false", "no", "numba")
+
+
+def register(options: ort.SessionOptions) -> None:
+    """Make sessions created with `options` run the ops the library holds with its kernels."""
+    _library()
+    options.register_custom_ops_library(library_path())
+
+
+@contextmanager
+def threads(count: int | None) -> Iterator[None]:
+    """Run this thread's ops with `count` threads (None: the library's default, every core
+    or RTDENOISE_OPS_THREADS), restored after; the setting belongs to the calling thread,
+    which is the one ORT runs the custom ops on."""
+    lib = _library()
+    before = lib.rtdenoise_ops_set_threads(max(0, int(count or 0)))
+    try:
+        yield
+    finally:
+        lib.rtdenoise_ops_set_threads(before)
