@@ -45,6 +45,21 @@ def declared_extensions(setup_py: Path) -> list[str]:
     return names
 
 
+def _installed_file(name: str) -> str | None:
+    """The installed file of Extension `name`: a Python extension module, or a plain shared
+    library (lib<last>.so / .dylib, <last>.dll) in its package folder (setup.py's BuildExt)."""
+    spec = importlib.util.find_spec(name)
+    if spec is not None and spec.origin:
+        if spec.origin.endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES)):
+            return spec.origin
+    package, _, last = name.rpartition(".")
+    folder = Path(importlib.util.find_spec(package).origin).parent
+    for file in (f"lib{last}.so", f"lib{last}.dylib", f"{last}.dll"):
+        if (folder / file).is_file():
+            return str(folder / file)
+    return None
+
+
 def check(project: Path) -> list[str]:
     problems = []
     import rtdenoise
@@ -55,19 +70,19 @@ def check(project: Path) -> list[str]:
     if not extensions:
         problems.append(f"{project / 'setup.py'} declares no Extension")
     for name in extensions:
-        spec = importlib.util.find_spec(name)
-        origin = spec.origin if spec is not None else None
-        if origin is None or not origin.endswith(tuple(importlib.machinery.EXTENSION_SUFFIXES)):
-            problems.append(f"extension {name}: not in the installed wheel (found {origin})")
+        origin = _installed_file(name)
+        if origin is None:
+            problems.append(f"extension {name}: not in the installed wheel")
     framework = [m for m in ("torch", "onnx", "onnxscript") if importlib.util.find_spec(m)]
     if framework:
         problems.append(f"the base install pulled in {', '.join(framework)}")
 
     from rtdenoise.runtime import Denoiser
 
-    bridge = Denoiser("demo:afn").bridge
-    if bridge != "native":
-        problems.append(f"the fast kernels run through the {bridge!r} bridge, not 'native'")
+    for demo, wanted in (("demo:afn", "native-cpp"), ("demo:nbg", "native")):
+        bridge = Denoiser(demo).bridge
+        if bridge != wanted:
+            problems.append(f"{demo}'s fast kernels run through {bridge!r}, not {wanted!r}")
     scripts = Path(sys.executable).parent
     command = scripts / ("denoise-run.exe" if os.name == "nt" else "denoise-run")
     with tempfile.TemporaryDirectory() as out:
