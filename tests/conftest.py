@@ -15,7 +15,7 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     parser.addoption(
         "--run-slow",
         action="store_true",
-        help=f"also run the tests marked slow (or set {RUN_SLOW_ENV}=1); .ci/release does",
+        help=f"also run the tests marked slow (or set {RUN_SLOW_ENV}=1)",
     )
 
 
@@ -24,7 +24,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     asked for, so CI's plain `python -m pytest -q` stays within its time."""
     if config.getoption("--run-slow") or os.environ.get(RUN_SLOW_ENV) == "1":
         return
-    skip = pytest.mark.skip(reason=f"slow: run with --run-slow or {RUN_SLOW_ENV}=1 (.ci/release)")
+    skip = pytest.mark.skip(reason=f"slow: run with --run-slow or {RUN_SLOW_ENV}=1")
     for item in items:
         if "slow" in item.keywords:
             item.add_marker(skip)

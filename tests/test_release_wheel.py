@@ -5,9 +5,9 @@ wheels only and no compiler (CC=false), and there scripts/check_wheel.py finds e
 Extension of setup.py compiled in, no torch, the native bridge, and `denoise-run --demo`
 passing.
 
-Marked slow (skipped by CI's plain `python -m pytest -q`; `.ci/release` runs it): about 3-4
-minutes on 2 shared cores, most of it pip installing the dependencies into the fresh venv and
-numba compiling the kernels afresh there. Needs a package index (PyPI): skipped without one.
+Part of CI's plain `python -m pytest -q`: 2-4 minutes on 2 shared cores, most of it pip
+installing the dependencies into the fresh venv and numba compiling the kernels afresh there.
+Needs a package index (PyPI): skipped without one.
 """
 
 from __future__ import annotations
@@ -24,7 +24,6 @@ SCRIPT = ROOT / "scripts" / "build_release_wheel.sh"
 OFFLINE = ("NewConnectionError", "Temporary failure in name resolution", "Network is unreachable")
 
 pytestmark = [
-    pytest.mark.slow,
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="builds the Linux wheel"),
 ]
 
