@@ -12,8 +12,9 @@ optimiser step, returning theta_t as next state. Nothing flows between frames bu
   which `torch.onnx.export` then converts: `torch.export` cannot trace `autograd.grad` itself
   (research-notes, "Training inside ONNX Runtime"). Two backward ops have no ONNX translation
   and are decomposed here into forward ops: `convolution_backward` (input gradient by a
-  transposed convolution, weight gradient by a convolution of the batch-transposed tensors;
-  the 1x1 stride-2 transposed convolution by a strided slice and a 1x1 convolution) and
+  convolution with the flipped, transposed weights, weight gradient by a convolution of the
+  batch-transposed tensors; the 1x1 stride-2 transposed convolution by a strided slice and a
+  1x1 convolution) and
   `max_pool2d_with_indices_backward` (ScatterElements-add of the gradient at the indices).
 """
 
@@ -131,8 +132,15 @@ def _convolution_backward(
     if not transposed:
         if any(s != 1 for s in stride):
             raise NotImplementedError("online export: strided convolutions are not supported")
-        if output_mask[0]:
-            grad_in = F.conv_transpose2d(grad_out, weight, padding=list(padding))
+        if output_mask[0]:  # conv_transpose2d(grad_out, weight) as a forward convolution:
+            # ONNX Runtime's ConvTranspose (GEMM + col2im) took 2.5 s of a 720p frame's
+            # backward per wide layer, its Conv with the flipped, transposed weights a third
+            k = weight.shape[2:]
+            if any(p > kk - 1 for p, kk in zip(padding, k, strict=True)):
+                raise NotImplementedError("online export: padding wider than the kernel")
+            flipped = weight.transpose(0, 1).flip((2, 3))
+            pad = [k[0] - 1 - padding[0], k[1] - 1 - padding[1]]
+            grad_in = F.conv2d(grad_out, flipped, padding=pad)
         if output_mask[1]:
             grad_w = F.conv2d(
                 inp.transpose(0, 1), grad_out.transpose(0, 1), padding=list(padding)
