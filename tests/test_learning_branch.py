@@ -1,6 +1,7 @@
 """export/learning_branch.py on a hand-made online graph: the update moves under an If, what
 the other outputs need stays outside, and both values of the condition give what the Where
-gave (the shipped demo:crossreg: tests/test_crossreg_online.py)."""
+gave (the shipped demo:crossreg: tests/test_crossreg_online.py); and the backward the online
+export traces (models/online.py) against autograd."""
 
 from __future__ import annotations
 
@@ -93,3 +94,35 @@ def test_a_learned_state_not_made_by_the_update_where_is_refused():
             node.input[:] = ["m1", "state.adam_m"]
     with pytest.raises(ValueError, match="not the update's Where"):
         branch_learning(model, ONLINE)
+
+
+@pytest.mark.parametrize(
+    ("c_in", "c_out", "k", "pad", "transposed"),
+    [(24, 8, 3, 1, False), (8, 24, 3, 1, False), (8, 6, 1, 0, False), (16, 16, 1, 0, True)],
+)
+def test_the_exported_convolution_backward_is_autograds(c_in, c_out, k, pad, transposed):
+    """models.online's convolution_backward decomposition (input gradient by a convolution with
+    the flipped weights, weight gradient by one matrix product per tap, the smaller tensor
+    shifted) gives autograd's gradients."""
+    import torch
+    import torch.nn.functional as F
+
+    from rtdenoise.models.online import _convolution_backward
+
+    gen = torch.Generator().manual_seed(0)
+    x = torch.rand(1, c_in, 12, 20, generator=gen, requires_grad=True)
+    shape = (c_in, c_out, 1, 1) if transposed else (c_out, c_in, k, k)
+    w = torch.rand(shape, generator=gen, requires_grad=True)
+    if transposed:
+        y = F.conv_transpose2d(x, w, stride=2, output_padding=1)
+        args = ([2, 2], [0, 0], [1, 1], True, [1, 1])
+    else:
+        y = F.conv2d(x, w, padding=pad)
+        args = ([1, 1], [pad, pad], [1, 1], False, [0, 0])
+    g = torch.rand(y.shape, generator=gen)
+    ref_x, ref_w = torch.autograd.grad(y, (x, w), g)
+    with torch.no_grad():
+        got_x, got_w, got_b = _convolution_backward(g, x, w, None, *args, 1, [True, True, True])
+    torch.testing.assert_close(got_x, ref_x, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(got_w, ref_w, rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(got_b, g.sum(dim=(0, 2, 3)))
