@@ -14,9 +14,10 @@ the history, the loss or `kept` need stays in the main graph as it was, so a fro
 computes exactly what it computed before, and a learning frame runs the same nodes as before.
 
 Chosen over a second, inference-only graph in the same file (the host choosing the session per
-frame) by measurement (benchmarks/README.md, "Frozen frames"): the `If` costs a learning frame
-nothing measurable and a frozen frame runs as fast as the pruned graph, with one session, one
-set of initialisers and no change to the contract (a host that knows nothing of it still works).
+frame) by measurement (benchmarks/README.md, "Frozen frames run no backward"): the `If` costs a
+learning frame nothing measurable and a frozen frame runs as fast as the pruned graph, with one
+session, one set of initialisers and no change to the contract (a host that knows nothing of it
+still works).
 """
 
 from __future__ import annotations
