@@ -4,8 +4,9 @@
 table (filter stages become `rtdenoise` custom nodes), the model-local function bodies
 attached, the pinned IR/opset versions. `export_model` folds a denoiser to deploy form, wraps
 its dict interface into the contract's positional inputs/outputs (names from its
-`Declaration`, rtdenoise.runtime.contract), exports it with `to_onnx`, writes the contract
-metadata and runs the full checker (docs/contract.md).
+`Declaration`, rtdenoise.runtime.contract), exports it with `to_onnx`, puts an online model's
+update under an `If` (learning_branch.py), writes the contract metadata and runs the full
+checker (docs/contract.md).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from rtdenoise.runtime.sequences.samples import feature_channels, sample_feature
 from . import ops as onnx_ops
 from .conv_widths import pad_conv_inputs, pad_conv_widths
 from .deploy import to_deploy
+from .learning_branch import branch_learning
 from .matmul_heads import matmul_heads
 from .ops import IR_VERSION, OPSET
 from .phase_split import phase_split_convs
@@ -181,6 +183,8 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     matmul_heads(proto)  # a head split by Slices as MatMuls (matmul_heads.py)
     pow_as_exp(proto)  # x ** c as exp(c log x): ORT's Pow is scalar (pow_as_exp.py)
     expose_options(proto, wrapper.declared)
+    # an online model's backward pass and optimiser step under an If: frozen frames skip them
+    branch_learning(proto, wrapper.declared.online)
     del proto.metadata_props[:]
     for key, value in wrapper.declared.metadata().items():
         proto.metadata_props.add(key=key, value=value)

@@ -8,7 +8,9 @@ and each node is assigned to a stage from the graph alone:
 - `regression`, `filter`: the custom op node of the stage (STAGE_OF_OP);
 - `backward + adam`: the nodes only the learned state needs: ancestors of the state outputs that
   `rtdenoise.online` names (parameters, moments, step) that are not ancestors of `output` or of
-  any other output (the gradient and the optimiser step);
+  any other output (the gradient and the optimiser step), and the nodes of the `If` branches
+  that hold them (export/learning_branch.py; the `If` itself is not counted: its time is its
+  branch's nodes');
 - `unet`: the remaining nodes downstream of the graph's first Conv and upstream of the next
   custom op node (the network and its output transforms);
 - `other`: the rest (reprojection, blending, loss, glue).
@@ -40,6 +42,7 @@ from rtdenoise.runtime import bridge
 from rtdenoise.runtime.contract import RESET, contract_from_session
 from rtdenoise.runtime.session import ALLOW_SPINNING, kernel_thread_count
 
+from .learning_branch import all_nodes, subgraphs
 from .validate import synthetic_frames
 
 STAGES = ("regression", "unet", "filter", "backward + adam", "other")
@@ -67,8 +70,9 @@ def _ancestors(graph: onnx.GraphProto, names: set[str]) -> set[int]:
     return seen
 
 
-def node_stages(model: onnx.ModelProto, online: dict | None) -> dict[str, str]:
-    """{node name: stage} for every node of the main graph (see the module docstring)."""
+def node_stages(model: onnx.ModelProto, online: dict | None) -> dict[str, str | None]:
+    """{node name: stage} for every node of the graph and its subgraphs (see the module
+    docstring); None for a node that holds subgraphs (not counted)."""
     graph = model.graph
     outputs = [o.name for o in graph.output]
     learned = {
@@ -91,9 +95,17 @@ def node_stages(model: onnx.ModelProto, online: dict | None) -> dict[str, str]:
                     down.add(i)
                     made.update(graph.node[i].output)
             unet = (up & down) - backward
-    stages = {}
+    stages: dict[str, str | None] = {}
     for i, node in enumerate(graph.node):
-        if node.domain == "rtdenoise":
+        inner = [sub for g in subgraphs(node) for sub in all_nodes(g)]
+        if inner:
+            stages[node.name] = None
+            for sub in inner:
+                if sub.domain == "rtdenoise":
+                    stages[sub.name] = STAGE_OF_OP.get(sub.op_type, sub.op_type)
+                else:
+                    stages[sub.name] = "backward + adam" if i in backward else "other"
+        elif node.domain == "rtdenoise":
             stages[node.name] = STAGE_OF_OP.get(node.op_type, node.op_type)
         elif i in backward:
             stages[node.name] = "backward + adam"
@@ -129,7 +141,7 @@ def node_ms_per_run(
 def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tuple[dict, float]:
     """(median ms per stage, median ms per frame) of ONNX Runtime over frames[1:]."""
     proto = onnx.load_from_string(onnx_bytes)
-    for i, node in enumerate(proto.graph.node):  # the profiler reports nodes by name
+    for i, node in enumerate(all_nodes(proto.graph)):  # the profiler reports nodes by name
         node.name = node.name or f"node_{i}"
     so = ort.SessionOptions()
     if threads:
@@ -157,7 +169,7 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
         walls.append((time.perf_counter() - t0) * 1e3)
         named = dict(zip([o.name for o in session.get_outputs()], outs, strict=True))
         state = {s.name: named[s.output_name] for s in contract.state}
-    stage = lambda node, _op: stage_of.get(node, "other")  # noqa: E731
+    stage = lambda node, _op: stage_of.get(node, "other")  # noqa: E731  (None: not counted)
     per_run = node_ms_per_run(session.end_profiling(), stage)
     timed = per_run[1:] or per_run
     return {s: float(np.median([run.get(s, 0.0) for run in timed])) for s in STAGES}, float(

@@ -105,31 +105,41 @@ def test_learn_every_and_no_online_reach_the_graph(tmp_path):
 
 def test_stage_benchmark_assigns_every_node_and_runs(tmp_path):
     """The ORT nodes of the online graph fall into the stages the way the graph is built: the
-    two custom ops, the forward U-Net (its 12 convolutions), backward + Adam (transposed convs
-    for the input gradients, the max-pool scatters); `denoise-bench stages` runs at a tiny size."""
+    two custom ops, the forward U-Net (its 12 convolutions), backward + Adam (convolutions and
+    matrix products for the gradients, the max-pool scatters), all of it inside the learning
+    If (its then-branch); `denoise-bench stages` runs at a tiny size."""
     from collections import Counter
 
     import onnx
     from typer.testing import CliRunner
 
     from rtdenoise.cli.bench import app
+    from rtdenoise.export.learning_branch import all_nodes
     from rtdenoise.export.stage_bench import node_stages
 
     proto = onnx.load(MODELS_DIR / "crossreg.onnx")
     online = json.loads({p.key: p.value for p in proto.metadata_props}["rtdenoise.online"])
     stages = node_stages(proto, online)
+    (branch,) = [n for n in proto.graph.node if n.op_type == "If"]
+    assert stages[branch.name] is None  # not counted: its time is its branch's nodes'
     ops = {stage: Counter() for stage in set(stages.values())}
-    for node in proto.graph.node:
+    for node in all_nodes(proto.graph):
         ops[stages[node.name]][node.op_type] += 1
+    # outside the If only its condition (from freeze) and the learned states' reshapes
+    outside = {n.op_type for n in proto.graph.node if stages[n.name] == "backward + adam"}
+    assert outside <= {"Clip", "Sub", "Greater", "Reshape"}
     assert ops["regression"] == Counter({"CrossRegression": 1})
     assert ops["filter"] == Counter({"CrossBilateralFilter": 1})
     assert ops["unet"]["Conv"] == 10 and ops["unet"]["ConvTranspose"] == 2  # the forward pass
     assert ops["unet"]["MaxPool"] == 2
     assert ops["backward + adam"]["ScatterElements"] == 2  # max-pool backward
-    # input gradients of the 10 convolutions but the first (the network input needs none)
-    assert ops["backward + adam"]["ConvTranspose"] == 9
-    # weight gradients of all 12 layers, input gradients of the 2 transposed convs
-    assert ops["backward + adam"]["Conv"] == 14
+    # input gradients of the 10 convolutions but the first (the network input needs none), as
+    # forward convolutions with flipped weights (ORT's ConvTranspose is 20x slower there), and
+    # of the 2 transposed convs; weight gradients as one MatMul per kernel tap: 9 3x3 convs,
+    # the 1x1 head and the 2 1x1 transposed convs
+    assert "ConvTranspose" not in ops["backward + adam"]
+    assert ops["backward + adam"]["Conv"] == 9 + 2
+    assert ops["backward + adam"]["MatMul"] == 9 * 9 + 1 + 2
     assert "Conv" not in ops["other"] and "ConvTranspose" not in ops["other"]
     out = tmp_path / "stages.json"
     res = CliRunner().invoke(
@@ -210,3 +220,43 @@ def test_relearn_at_cuts_on_the_command_line(tmp_path):
                                 "--relearn-at-cuts"])  # fmt: skip
     assert again.exit_code == 0, again.output
     assert "3 update steps" in again.output
+
+
+def test_frozen_frames_run_no_backward_node(tmp_path):
+    """freeze = 1 (--no-online, the frames --learn-every skips) runs none of the backward pass
+    and Adam nodes (the learning If's then-branch), by ONNX Runtime's own profile; a learning
+    frame runs them."""
+    import numpy as np
+    import onnx
+    import onnxruntime as ort
+
+    from rtdenoise.export.learning_branch import all_nodes
+    from rtdenoise.export.stage_bench import node_ms_per_run
+    from rtdenoise.runtime.contract import RESET, contract_from_session
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+
+    proto = onnx.load(MODELS_DIR / "crossreg.onnx")
+    (branch,) = [n for n in proto.graph.node if n.op_type == "If"]
+    then = next(a.g for a in branch.attribute if a.name == "then_branch")
+    update = {n.name for n in all_nodes(then)}
+    assert len(update) > 200 and all(update)
+    assert {"Conv", "ScatterElements"} <= {n.op_type for n in then.node}
+    so = ort.SessionOptions()
+    so.enable_profiling = True
+    so.profile_file_prefix = str(tmp_path / "ort")
+    session = ort.InferenceSession(proto.SerializeToString(), so, ["CPUExecutionProvider"])
+    contract = contract_from_session(session)
+    frame = synthetic_frames(contract.buffer_names, 1, 32, 32)[0]
+    for freeze in (1.0, 0.0, 1.0):
+        feed = {name: frame[name][None] for name in contract.buffer_names}
+        feed[RESET] = np.array(1.0, np.float32)
+        for s in contract.state:
+            feed[s.input_name] = np.full(s.shape(32, 32), freeze if s.name == "freeze" else 0.0,
+                                         np.float32)  # fmt: skip
+        session.run(None, feed)
+    runs = node_ms_per_run(
+        session.end_profiling(), lambda name, _op: "update" if name in update else "rest"
+    )
+    frozen, learning, frozen_again = ({k: v > 0 for k, v in run.items()} for run in runs)
+    assert "update" not in frozen and "update" not in frozen_again
+    assert learning["update"] and frozen["rest"]
