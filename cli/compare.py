@@ -261,10 +261,19 @@ def compare_command(
             _plot(plot, result, [720, 1280] if [720, 1280] in timed else timed[-1])
 
 
+# column label and digits of each score of runtime.sequences.compare.SCORES
+SCORE_COLUMNS = {
+    "psnr": ("PSNR dB", 2),
+    "ssim": ("SSIM", 4),
+    "smape": ("SMAPE", 4),
+    "relmse": ("relMSE", 4),
+    "trmae": ("TRMAE", 4),
+}
+
+
 def _scores(m: dict[str, float]) -> list[str]:
-    """The quality columns of one row (PSNR, SSIM, SMAPE, relMSE, TRMAE)."""
-    digits = {"psnr": 2, "ssim": 4, "smape": 4, "relmse": 4, "trmae": 4}
-    return [_fmt(m[k], d) for k, d in digits.items()]
+    """The quality columns of one row, in SCORE_COLUMNS' order."""
+    return [_fmt(m[k], digits) for k, (_, digits) in SCORE_COLUMNS.items()]
 
 
 def _print(result: dict[str, Any]) -> None:
@@ -277,7 +286,7 @@ def _print(result: dict[str, Any]) -> None:
     for label in sizes:
         times.add_column(label, justify="right")
         per_px.add_column(label, justify="right")
-    for label in ("PSNR dB", "SSIM", "SMAPE", "relMSE", "TRMAE"):
+    for label, _ in SCORE_COLUMNS.values():
         per_px.add_column(label, justify="right")
     for name, q in result["quality"].items():
         rows = [row["summary"][name] for row in result["speed"]]
