@@ -21,6 +21,9 @@ from rtdenoise.models import build_model, parameter_count, save_checkpoint
 CANDIDATES = {
     "afn-w24": ("afn", {"widths": [24, 18, 24, 36, 48]}),
     "afn-w32": ("afn", {"widths": [32, 24, 32, 48, 64]}),
+    "wskp-w24x3": ("wskp", {"width": 24, "layers": 3}),
+    "wskp-w32x3": ("wskp", {"width": 32, "layers": 3}),
+    "wskp-w24x4": ("wskp", {"width": 24, "layers": 4}),
     "wskp-w24x6": ("wskp", {"width": 24, "layers": 6}),
     "wskp-w32x6": ("wskp", {"width": 32, "layers": 6}),
     "nbg-h40": ("nbg", {"hidden": 40}),

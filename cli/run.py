@@ -52,8 +52,10 @@ from rtdenoise.runtime.sequences.run import (
     run_sequence,
 )
 
-# The model used when --model is not given: the shipped AFN demo (Lee24).
-DEFAULT_MODEL = "demo:afn"
+# The model used when --model is not given: the shipped demo with the best quality per
+# millisecond on the unseen validation set (benchmarks/README.md, "Against Open Image Denoise":
+# demo:wskp, Fan21, the highest PSNR and lowest relMSE of the light models at 0.24x OIDN high).
+DEFAULT_MODEL = "demo:wskp"
 TABLE_MAX_FRAMES = 12  # per-frame rows up to this many frames, else only the mean
 
 _LAYOUT_HELP = "; ".join(f"**{name}**: {lay.description}" for name, lay in LAYOUTS.items())

@@ -107,7 +107,7 @@ def test_denoise_run_demo_uses_the_shipped_model(tmp_path):
 
     res = CliRunner().invoke(app, ["--demo", "-o", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "demo:afn over 3 sequences" in res.output
+    assert "demo:wskp over 3 sequences" in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq_000", "seq_001", "seq_002"]
     assert len(list((tmp_path / "seq_000").glob("frame_*.exr"))) == 8
 
