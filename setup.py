@@ -43,6 +43,7 @@ NATIVE_OPS = Extension(
     language="c++",
     optional=True,
 )
+NATIVE_OPS.sources.append("runtime/bridge/native_ops/guard.cpp")  # C input guard: rtdenoise_guard.h
 EXPORTS = ["RegisterCustomOps", "rtdenoise_ops_names", "rtdenoise_ops_set_threads",
            "rtdenoise_ops_abi"]  # fmt: skip
 

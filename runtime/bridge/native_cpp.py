@@ -7,6 +7,11 @@ buffers, with its errors returned as ORT statuses naming the op and the cause. A
 host loads the same file. From Python, this module finds it, says which ops it holds, and
 sets its thread count around a run (`threads`), as `numba_threads` does for numba.
 
+The library also exports the input guard as C functions (native_ops/rtdenoise_guard.h, the
+rules of runtime/guard.py for C and C++ hosts; examples/host_c/host.c calls them): the
+runtime guards in Python, and `guard_buffer` / `zero_guide` here call the C form only so that
+tests/test_native_guard.py can compare the two bit for bit.
+
 It holds only some ops (`covered_ops`); the chooser (`bridge.register_fast_kernels`) picks it
 for a model only when it holds every rtdenoise op of that model, none of them NOT_BY_DEFAULT.
 No numba, no torch here.
@@ -21,8 +26,13 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+import numpy as np
 import onnxruntime as ort
+
+if TYPE_CHECKING:
+    from ..guard import Guarded
 
 FILE = {"win32": "rtdenoise_ops.dll", "darwin": "librtdenoise_ops.dylib"}.get(
     sys.platform, "librtdenoise_ops.so"
@@ -110,3 +120,70 @@ def threads(count: int | None) -> Iterator[None]:
         yield
     finally:
         lib.rtdenoise_ops_set_threads(before)
+
+
+class GuardCounts(ctypes.Structure):
+    """rtdenoise_guard_counts (native_ops/rtdenoise_guard.h)."""
+
+    _fields_ = [
+        ("nonfinite", ctypes.c_int64),
+        ("clamped", ctypes.c_int64),
+        ("outliers", ctypes.c_int64),
+        ("zero", ctypes.c_int32),
+        ("reserved", ctypes.c_int32),
+    ]
+
+
+@cache
+def guard_library() -> ctypes.CDLL:
+    """The library with the guard's C functions declared (rtdenoise_guard.h)."""
+    lib = _library()
+    p, i64 = ctypes.c_void_p, ctypes.c_int64
+    lib.rtdenoise_guard_buffer.argtypes = [
+        ctypes.c_char_p, p, p, i64, i64, i64, ctypes.POINTER(GuardCounts), p
+    ]  # fmt: skip
+    lib.rtdenoise_guard_buffer.restype = ctypes.c_int
+    lib.rtdenoise_guard_zero_guide.argtypes = [ctypes.c_char_p, p, i64]
+    lib.rtdenoise_guard_zero_guide.restype = ctypes.c_int
+    lib.rtdenoise_guard_error.argtypes = [ctypes.c_int]
+    lib.rtdenoise_guard_error.restype = ctypes.c_char_p
+    return lib
+
+
+def _guard_error(call: str, code: int) -> ValueError:
+    return ValueError(f"{call}: {guard_library().rtdenoise_guard_error(code).decode()} ({code})")
+
+
+def guard_buffer(name: str, array: np.ndarray, *, in_place: bool = True) -> Guarded:
+    """The C guard (`rtdenoise_guard_buffer`) on a float32 copy of `array` (..., H, W): the
+    `Guarded` that `runtime.guard.guard_buffer` returns, computed by the library (its array
+    always a new one). in_place=False: the C function reads the copy and writes another array
+    (its input/output form). ValueError for what the C function refuses (an empty array)."""
+    from ..guard import Guarded
+
+    a = np.array(array, dtype=np.float32, order="C", copy=True)
+    if a.ndim < 2:
+        raise ValueError(f"guard_buffer: needs an (..., H, W) array, got shape {a.shape}")
+    h, w = a.shape[-2:]
+    planes = int(np.prod(a.shape[:-2], dtype=np.int64))
+    out = a if in_place else np.full_like(a, np.nan)
+    mask = np.zeros((h, w), np.uint8)
+    counts = GuardCounts()
+    code = guard_library().rtdenoise_guard_buffer(
+        name.encode(), a.ctypes.data, out.ctypes.data, planes, h, w, ctypes.byref(counts),
+        mask.ctypes.data,
+    )  # fmt: skip
+    if code:
+        raise _guard_error(f"rtdenoise_guard_buffer({name!r}, shape {a.shape})", code)
+    nonfinite = mask.astype(bool) if counts.nonfinite else None
+    return Guarded(out, nonfinite, int(counts.clamped), int(counts.outliers), bool(counts.zero))
+
+
+def zero_guide(name: str, array: np.ndarray) -> bool:
+    """`rtdenoise_guard_zero_guide`: True when `name` is a guide buffer (albedo, normal, depth)
+    and every value of `array` is 0."""
+    a = np.ascontiguousarray(array, np.float32)
+    code = guard_library().rtdenoise_guard_zero_guide(name.encode(), a.ctypes.data, a.size)
+    if code < 0:
+        raise _guard_error(f"rtdenoise_guard_zero_guide({name!r}, shape {a.shape})", code)
+    return bool(code)
