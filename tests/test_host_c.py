@@ -1,8 +1,11 @@
 """examples/host_c/host.c: a C host built with the system compiler against the ONNX Runtime
 shared library of the onnxruntime wheel, running demo:afn on the C++ custom-op library
-rtdenoise_ops with its state fed back, matches `Denoiser` within 1e-5 over the committed
-sequence. Skipped, with the reason, where the library was not built or there is no C
-compiler; the wheel's libonnxruntime is required (it ships in the Linux wheels)."""
+rtdenoise_ops with its state fed back and every buffer through the library's C input guard
+(rtdenoise_guard.h), matches `Denoiser` within 1e-5 over the committed sequence, and over it
+with frames polluted by NaN, +-Inf, out-of-range values, fireflies and a missing albedo pass
+(the same guard counts and history restarts, a finite output). Skipped, with the reason,
+where the library was not built or there is no C compiler; the wheel's libonnxruntime is
+required (it ships in the Linux wheels)."""
 
 from __future__ import annotations
 
@@ -47,16 +50,58 @@ def build_host(tmp_path: Path) -> Path:
     for name in ("libonnxruntime.so", "libonnxruntime.so.1"):
         (libs / name).symlink_to(lib)
     exe = tmp_path / "host"
+    include = Path(native_cpp.__file__).parent / "native_ops"  # rtdenoise_guard.h
     res = subprocess.run(
-        [cc, "-O2", "-Wall", "-o", str(exe), str(HOST), f"-L{libs}", "-lonnxruntime",
-         f"-Wl,-rpath,{libs}", "-ldl"],
+        [cc, "-O2", "-Wall", f"-I{include}", "-o", str(exe), str(HOST), f"-L{libs}",
+         "-lonnxruntime", f"-Wl,-rpath,{libs}", "-ldl"],
         capture_output=True, text=True,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     return exe
 
 
-def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path):
+def polluted(frames: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:
+    """The frames cropped to 61 x 58 (padded to 64 x 64 by the model's multiple), with what a
+    renderer may emit: NaN, +-Inf, colour above the half range and below 0, isolated
+    fireflies (one on the last column, which padding before the guard would shield), a
+    firefly pair, wild and NaN motion, depth +Inf, a frame without its albedo pass and one
+    with NaN normals everywhere (zero once guarded: that pass is missing too)."""
+    out = [{k: np.array(v[:, :61, :58], np.float32) for k, v in f.items()} for f in frames]
+    f = out[1]
+    f["color"][:, 5, 7] = np.nan
+    f["color"][0, 10, 3] = np.inf
+    f["color"][1, 3, 30] = -np.inf
+    f["color"][:, 20, 20] = 1e6
+    f["color"][2, 40, 9] = -4.0
+    f["color"][:, 30, 57] = 5e4  # a firefly on the last column
+    f["color"][:, 50, 12] = 3e4  # and one inside
+    f["normal"][:, 4, 4] = np.nan
+    f["depth"][0, 6, 6] = np.inf
+    f["motion"][:, 12, 12] = 1e30
+    f["motion"][1, 13, 40] = np.nan
+    f["albedo"][:, 0, 0] = 1e5
+    out[2]["color"][:, 33, 33:35] = 2e4  # two adjacent fireflies: kept
+    out[3]["albedo"][:] = 0.0  # a missing pass: this frame and the next restart the history
+    out[5]["normal"][:] = np.nan
+    out[5]["color"][0] = -np.inf
+    return out
+
+
+def guard_lines(den: Denoiser, t: int) -> list[str]:
+    """The line host.c prints for frame `t` from what `den.last_guard` says about it."""
+    g = den.last_guard
+    reset = int(t == 0 or g.reset is not None)
+    if not (g.nonfinite_pixels or g.clamped or g.outliers or g.unusable or (reset and t > 0)):
+        return []
+    unusable = ",".join(g.unusable) or "-"
+    return [
+        f"frame {t}: nonfinite {g.nonfinite_pixels} clamped {sum(g.clamped.values())} "
+        f"outliers {sum(g.outliers.values())} unusable {unusable} reset {reset}"
+    ]
+
+
+@pytest.mark.parametrize("pollution", ["clean", "polluted"])
+def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path, pollution):
     exe = build_host(tmp_path)
     den = Denoiser("demo:afn")
     assert den.bridge == "native-cpp"
@@ -66,10 +111,13 @@ def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path):
     pad = int(meta["rtdenoise.pad_multiple"])
     inputs = {i.name for i in den.session.get_inputs()}
     frames = [read_frame(p).buffers for p in find_frames(sample_sequences()[0])][:8]
+    if pollution == "polluted":
+        frames = polluted(frames)
     h, w = frames[0][buffers[0]].shape[-2:]
     hp, wp = -(-h // pad) * pad, -(-w // pad) * pad
     # the plan: what a host reads from the metadata (docs/contract.md, "Driving a model")
     lines = [f"model {den.source}", f"library {native_cpp.library_path()}", f"frames {len(frames)}"]
+    lines.append(f"size {h} {w}")  # each f<t>.<buffer>.f32 holds the H x W frame
     ins = [(b, (1, frames[0][b].shape[0], hp, wp)) for b in buffers]
     if "reset" in inputs:
         ins.append(("reset", ()))
@@ -81,19 +129,25 @@ def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path):
         lines.append(f"state.{s['name']} {len(shape)} {' '.join(map(str, shape))}")
     lines.append(f"output output 4 1 3 {hp} {wp}")
     (tmp_path / "plan.txt").write_text("\n".join(lines) + "\n")
-    for t, frame in enumerate(frames):
+    for t, frame in enumerate(frames):  # unpadded: the host guards, then pads
         for b in buffers:
-            a = np.asarray(frame[b], np.float32)
-            a = np.pad(a, [(0, 0), (0, hp - h), (0, wp - w)], mode="edge")
-            np.ascontiguousarray(a, np.float32).tofile(tmp_path / f"f{t}.{b}.f32")
+            np.ascontiguousarray(frame[b], np.float32).tofile(tmp_path / f"f{t}.{b}.f32")
     res = subprocess.run(
         [str(exe), str(tmp_path / "plan.txt"), str(tmp_path)],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
-    assert res.stdout.strip() == f"{len(frames)} frames"
+    *guarded, last = res.stdout.strip().splitlines()
+    assert last == f"{len(frames)} frames"
+    expected_lines = []
     for t, frame in enumerate(frames):
         expected = den.process(frame)
+        expected_lines += guard_lines(den, t)
         got = np.fromfile(tmp_path / f"out{t}.f32", np.float32).reshape(3, hp, wp)[:, :h, :w]
+        assert np.isfinite(got).all(), t
         err = float(np.abs(got - expected).max() / max(1.0, float(np.abs(expected).max())))
         assert err <= 1e-5, (t, err)
+    assert guarded == expected_lines
+    if pollution == "polluted":
+        assert den.guard_totals.unusable_frames == 2 and den.guard_totals.outliers >= 2
+        assert any("unusable albedo reset 1" in line for line in guarded)
