@@ -4,7 +4,9 @@
 runs, so the rule holds for every model, exported before or after this module existed. The
 contract (docs/contract.md, "Buffers") says what each buffer holds; a value that cannot be that
 is replaced or clamped here, in a copy (never the caller's array), and counted in pixels per
-buffer. docs/reliability.md has the table of every case.
+buffer. docs/reliability.md has the table of every case. C and C++ hosts get the same rules
+from the C++ library (bridge/native_ops/guard.cpp, rtdenoise_guard.h), bit for bit
+(tests/test_native_guard.py): a change here is made there too.
 
 `RULES`, per buffer: the range [low, high] and what NaN / +Inf / -Inf become.
 
