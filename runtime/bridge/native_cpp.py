@@ -26,13 +26,10 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import NamedTuple
 
 import numpy as np
 import onnxruntime as ort
-
-if TYPE_CHECKING:
-    from ..guard import Guarded
 
 FILE = {"win32": "rtdenoise_ops.dll", "darwin": "librtdenoise_ops.dylib"}.get(
     sys.platform, "librtdenoise_ops.so"
@@ -122,6 +119,17 @@ def threads(count: int | None) -> Iterator[None]:
         lib.rtdenoise_ops_set_threads(before)
 
 
+class GuardResult(NamedTuple):
+    """What the C guard did to one buffer: the fields of `runtime.guard.Guarded` (the bridge
+    does not import the runtime's host wing, tests/test_layers.py)."""
+
+    array: np.ndarray  # the guarded copy
+    nonfinite: np.ndarray | None  # (H, W) mask of pixels that had NaN/Inf, None: none had
+    clamped: int
+    outliers: int
+    zero: bool
+
+
 class GuardCounts(ctypes.Structure):
     """rtdenoise_guard_counts (native_ops/rtdenoise_guard.h)."""
 
@@ -154,13 +162,11 @@ def _guard_error(call: str, code: int) -> ValueError:
     return ValueError(f"{call}: {guard_library().rtdenoise_guard_error(code).decode()} ({code})")
 
 
-def guard_buffer(name: str, array: np.ndarray, *, in_place: bool = True) -> Guarded:
-    """The C guard (`rtdenoise_guard_buffer`) on a float32 copy of `array` (..., H, W): the
-    `Guarded` that `runtime.guard.guard_buffer` returns, computed by the library (its array
-    always a new one). in_place=False: the C function reads the copy and writes another array
-    (its input/output form). ValueError for what the C function refuses (an empty array)."""
-    from ..guard import Guarded
-
+def guard_buffer(name: str, array: np.ndarray, *, in_place: bool = True) -> GuardResult:
+    """The C guard (`rtdenoise_guard_buffer`) on a float32 copy of `array` (..., H, W): what
+    `runtime.guard.guard_buffer` returns, computed by the library (its array always a new
+    one). in_place=False: the C function reads the copy and writes another array (its
+    input/output form). ValueError for what the C function refuses (an empty array)."""
     a = np.array(array, dtype=np.float32, order="C", copy=True)
     if a.ndim < 2:
         raise ValueError(f"guard_buffer: needs an (..., H, W) array, got shape {a.shape}")
@@ -176,7 +182,7 @@ def guard_buffer(name: str, array: np.ndarray, *, in_place: bool = True) -> Guar
     if code:
         raise _guard_error(f"rtdenoise_guard_buffer({name!r}, shape {a.shape})", code)
     nonfinite = mask.astype(bool) if counts.nonfinite else None
-    return Guarded(out, nonfinite, int(counts.clamped), int(counts.outliers), bool(counts.zero))
+    return GuardResult(out, nonfinite, int(counts.clamped), int(counts.outliers), bool(counts.zero))
 
 
 def zero_guide(name: str, array: np.ndarray) -> bool:
