@@ -80,6 +80,17 @@ bool value_count(int64_t planes, int64_t height, int64_t width, size_t *pixels, 
     return true;
 }
 
+/* Lane k of `count` (<= the lanes) values: its min, max and whether any is NaN/Inf. */
+inline void scan(const float *x, float *lo, float *hi, uint32_t *bad, size_t count) {
+    for (size_t k = 0; k < count; ++k) {
+        uint32_t bits;
+        std::memcpy(&bits, x + k, sizeof bits);
+        bad[k] |= static_cast<uint32_t>((bits & 0x7f800000u) == 0x7f800000u);
+        lo[k] = x[k] < lo[k] ? x[k] : lo[k];
+        hi[k] = x[k] > hi[k] ? x[k] : hi[k];
+    }
+}
+
 size_t ones(const std::vector<uint8_t> &mask) {
     size_t n = 0;
     for (uint8_t v : mask) n += v;
@@ -96,16 +107,24 @@ int guard(const char *name, const float *input, float *output, int64_t planes, i
     if (a != b && a < b + bytes && b < a + bytes) return RTDENOISE_GUARD_OVERLAP;
     const Rule r = rule_for(name, height, width);
 
-    // 1. min, max (NaN propagates in NumPy: here a separate flag)
-    bool nan = false;
-    float lo = std::numeric_limits<float>::infinity(), hi = -lo;
-    for (size_t i = 0; i < n; ++i) {
-        const float x = input[i];
-        nan |= x != x;
-        lo = x < lo ? x : lo;
-        hi = x > hi ? x : hi;
+    // 1. min, max (NaN propagates in NumPy: here a NaN/Inf flag from the exponent bits),
+    // in LANES independent lanes so that the compiler vectorises the pass
+    constexpr size_t LANES = 16;
+    float los[LANES], his[LANES];
+    uint32_t bad[LANES];
+    for (size_t k = 0; k < LANES; ++k)
+        los[k] = std::numeric_limits<float>::infinity(), his[k] = -los[k], bad[k] = 0;
+    size_t i = 0;
+    for (; i + LANES <= n; i += LANES) scan(input + i, los, his, bad, LANES);
+    scan(input + i, los, his, bad, n - i);
+    float lo = los[0], hi = his[0];
+    uint32_t nonfinite = bad[0];
+    for (size_t k = 1; k < LANES; ++k) {
+        lo = los[k] < lo ? los[k] : lo;
+        hi = his[k] > hi ? his[k] : hi;
+        nonfinite |= bad[k];
     }
-    const bool finite = !nan && std::isfinite(lo) && std::isfinite(hi);
+    const bool finite = nonfinite == 0;
     const bool in_range = finite && r.low <= lo && hi <= r.high;
     const double outlier_min = static_cast<double>(OUTLIER_RATIO) * OUTLIER_FLOOR;
     rtdenoise_guard_counts c{0, 0, 0, 0, 0};
