@@ -1,0 +1,112 @@
+"""Does Choi24's online learning pay? demo:crossreg learning vs frozen, frame by frame.
+
+Runs the crossreg checkpoint (its weights are the initial theta) in PyTorch eager over each
+sequence twice from the same init: learning (one Adam step per frame, as shipped) and frozen
+(`freeze` = 1 on every frame: the init's output). A camera cut restarts the history and keeps
+the learning (state `keep` = 1), as `Denoiser.reset()` does. Config overrides are variants
+(`--variant NAME=JSON`, e.g. `lr3=\'{"lr": 3e-3}\'`), each run both ways from the same weights.
+Prints per sequence the tau-PSNR pooled over the frames from --skip on, learning minus frozen,
+and the learning curve in blocks of --block frames:
+
+    python benchmarks/online_gain.py /work/data/long/seq_000 validation/seq_00{0..7} \\
+        --variant default='{}' --variant lr3e-3='{"lr": 3e-3}' --json online_gain.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from rtdenoise.models.checkpoint import read_checkpoint
+from rtdenoise.models.data import load_sequence
+from rtdenoise.models.registry import build_model
+from rtdenoise.runtime.sequences.metrics import mse_tonemapped, psnr_from_mse
+from rtdenoise.shipped import demo_model
+
+
+def run(model, seq, learn: bool) -> list[float]:
+    """Per-frame tonemapped MSE of `model` over `seq`, learning or frozen."""
+    n_frames = seq.reference.shape[0]
+    h, w = seq.reference.shape[-2:]
+    state = model.initial_state(1, h, w)
+    cuts = set(seq.cuts)
+    mses = []
+    with torch.no_grad():
+        for t in range(n_frames):
+            buffers = {k: torch.from_numpy(v[t][None]) for k, v in seq.buffers.items()}
+            first = t == 0 or t in cuts
+            state["freeze"] = torch.full_like(state["freeze"], 0.0 if learn else 1.0)
+            state["keep"] = torch.full_like(state["keep"], 0.0 if t == 0 else 1.0)
+            out, state = model(buffers, state, torch.tensor(1.0 if first else 0.0))
+            mses.append(mse_tonemapped(out[0].numpy(), seq.reference[t]))
+    return mses
+
+
+def pooled(mses: list[float], skip: int) -> float:
+    return psnr_from_mse(float(np.mean(mses[skip:])))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("sequences", nargs="+", type=Path)
+    ap.add_argument("--checkpoint", default=None, help="crossreg .pt (default: demo:crossreg)")
+    ap.add_argument("--variant", action="append", default=[], help="NAME=JSON config overrides")
+    ap.add_argument("--skip", type=int, default=8, help="score frames from this one on")
+    ap.add_argument("--block", type=int, default=8, help="learning curve in blocks of N frames")
+    ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--json", type=Path, default=None)
+    args = ap.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    ckpt = read_checkpoint(args.checkpoint or demo_model("crossreg", ".pt"))
+    variants = dict(v.split("=", 1) for v in args.variant) or {"default": "{}"}
+    base = build_model("crossreg", ckpt["config"])
+    seqs = [load_sequence(p, base.inputs) for p in args.sequences]
+    results: dict = {}
+    for name, overrides in variants.items():
+        model = build_model("crossreg", {**ckpt["config"], **json.loads(overrides)})
+        model.load_state_dict(ckpt["state_dict"])
+        model.eval()
+        results[name] = {}
+        for seq in seqs:
+            t0 = time.perf_counter()
+            learn, frozen = run(model, seq, True), run(model, seq, False)
+            row = {
+                "frames": len(learn),
+                "learning": pooled(learn, args.skip),
+                "frozen": pooled(frozen, args.skip),
+                "curve_learning": [
+                    pooled(learn[i : i + args.block], 0) for i in range(0, len(learn), args.block)
+                ],
+                "curve_frozen": [
+                    pooled(frozen[i : i + args.block], 0)
+                    for i in range(0, len(frozen), args.block)
+                ],
+            }
+            row["gain"] = row["learning"] - row["frozen"]
+            results[name][seq.name] = row
+            curve = " ".join(
+                f"{a - b:+.2f}"
+                for a, b in zip(row["curve_learning"], row["curve_frozen"], strict=True)
+            )
+            print(
+                f"{name:12s} {seq.name:10s} {row['frames']:3d} frames: learning "
+                f"{row['learning']:.2f} frozen {row['frozen']:.2f} dB (frames >= {args.skip}), "
+                f"gain {row['gain']:+.2f}; per {args.block} frames {curve} "
+                f"({time.perf_counter() - t0:.0f} s)",
+                flush=True,
+            )
+        gains = [r["gain"] for r in results[name].values()]
+        print(f"{name:12s} mean gain {np.mean(gains):+.3f} dB over {len(gains)} sequences")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
