@@ -334,3 +334,10 @@ def test_shipped_demo_runs_on_the_extensions_bridge_with_per_tap_written_out() -
             del b.attribute[:]
         assert a == b
     assert old.functions == new.functions and old.graph.initializer == new.graph.initializer
+    from rtdenoise.runtime import Denoiser
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+
+    den = Denoiser("demo:afn", fast_kernels="extensions")
+    assert den.bridge == "extensions"
+    frames = synthetic_frames(den.required_buffers, 2, 16, 16)
+    assert all(np.isfinite(den.process(f)).all() for f in frames)
