@@ -20,6 +20,7 @@ from .features import frame_inputs
 from .ops.temporal_accumulation import temporal_accumulation
 from .temporal import TemporalConfig
 
+REPROJECTIONS = ("bilinear", "per_tap")  # AccumulatingConfig.reprojection
 ACCUMULATION_INPUTS = ("color", "albedo", "normal", "depth", "motion")
 ACCUMULATION_STATE = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))
 ACCUMULATION_NOTE = (
@@ -38,6 +39,10 @@ class AccumulatingConfig(FamilyConfig):
     normal_threshold: float = 0.9
     min_alpha: float = 0.2
     max_history: float = 64.0
+    # TA's reprojection (models.temporal): "bilinear" tests the warped geometry once per
+    # pixel (every shipped demo, and a checkpoint saved before this field); "per_tap" tests
+    # each bilinear tap and renormalises over the accepted ones (SVGF, BMFR).
+    reprojection: str = "bilinear"
 
     def temporal(self) -> TemporalConfig:
         return TemporalConfig(
@@ -45,7 +50,16 @@ class AccumulatingConfig(FamilyConfig):
             normal_threshold=self.normal_threshold,
             min_alpha=self.min_alpha,
             max_history=self.max_history,
+            per_tap=int(self.reprojection == "per_tap"),
         )
+
+    def validate(self) -> None:
+        """The accumulation's own fields (the families' `validate` calls it first)."""
+        if self.reprojection not in REPROJECTIONS:
+            raise self.fail(
+                f"reprojection must be one of {', '.join(map(repr, REPROJECTIONS))}, "
+                f"got {self.reprojection!r}"
+            )
 
 
 @dataclass

@@ -18,12 +18,19 @@ with weight a = max(a_min, 1 / (history + 1)) so that the first frames average u
 later frames converge to an exponential moving average with weight a_min (0.2 = Meng20's
 history weight 0.8).
 
-One difference from SVGF and BMFR: the whole previous state (accumulation, depth, normal) is
-warped bilinearly first and the *interpolated* depth and normal are tested, once per pixel;
-those schemes test each of the four bilinear taps and renormalise the weights of the accepted
-ones, which keeps a silhouette's background taps out of a foreground pixel's history. Per-tap
-reprojection exists for crossreg (`models/reprojection.py`); docs/families/afn.md and wskp.md
-list it as a deviation (not measured).
+Two reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
+- 0, bilinear (`temporal_step`'s default, every shipped model): the whole previous state
+  (accumulation, depth, normal) is warped bilinearly first and the *interpolated* depth and
+  normal are tested, once per pixel. A deviation from SVGF and BMFR: at a silhouette the
+  interpolated depth of a foreground pixel mixes background taps in (or rejects the pixel);
+- 1, per tap (`per_tap_history`, SVGF: Schied17 s.4.1, BMFR): each of the four bilinear taps
+  is tested on its own (inside the previous frame, the same relative-depth and normal-dot
+  tests against the current pixel) and the bilinear weights are renormalised over the
+  accepted taps; the history is dropped where they weigh less than 0.01 (SVGF's cut, so
+  where no tap passes). Tap order, weights and the inside test follow crossreg's
+  `models.reprojection.svgf_reproject`; the tests are TA's own (no fwidth, no 3 x 3 fallback,
+  no erosion). docs/families/afn.md, wskp.md and nbg.md: the demos use bilinear until
+  retrained.
 """
 
 from __future__ import annotations
@@ -43,6 +50,7 @@ class TemporalConfig:
     normal_threshold: float = 0.9  # valid if dot(n_prev, n) > normal_threshold
     min_alpha: float = 0.2  # a_min: weight of the current frame in the moving average
     max_history: float = 64.0  # history length is clamped (keeps the state bounded)
+    per_tap: int = 0  # 0: test the bilinearly warped geometry; 1: test each tap (SVGF)
 
 
 def in_bounds(motion: torch.Tensor) -> torch.Tensor:
@@ -99,6 +107,59 @@ def accumulate(
     return acc, new_len, alpha
 
 
+def _tap_values(flat: torch.Tensor, fx: torch.Tensor, fy: torch.Tensor) -> torch.Tensor:
+    """flat (N, K, H*W) read at the integer-valued float positions (fx, fy) (N, H, W),
+    clamped into the image (a tap outside is rejected, its value never used) -> (N, K, H, W)."""
+    n, k, _ = flat.shape
+    h, w = fx.shape[1], fx.shape[2]
+    ix = fx.clamp(0, w - 1).long()
+    iy = fy.clamp(0, h - 1).long()
+    idx = (iy * w + ix).reshape(n, 1, h * w).expand(n, k, h * w)
+    return torch.gather(flat, 2, idx).reshape(n, k, h, w)
+
+
+def per_tap_history(
+    motion: torch.Tensor,
+    depth: torch.Tensor,
+    normal: torch.Tensor,
+    ta_state: torch.Tensor,
+    geometry_state: torch.Tensor,
+    reset: torch.Tensor,
+    config: TemporalConfig = TemporalConfig(),
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """SVGF's per-tap reprojection of `ta_state` (N, C + 1, H, W): (warped ta_state, valid
+    (N, 1, H, W) in {0, 1}). Each bilinear tap around current + motion passes if it lies in
+    the previous frame and its depth and normal agree with the current pixel's (the tests of
+    `history_validity`); the accepted taps' bilinear weights are renormalised; valid where
+    they sum to at least 0.01 and reset is 0. A rejected tap's value is selected away, never
+    multiplied by 0; where invalid the warped state is 0."""
+    n, c1, h, w = ta_state.shape
+    flat = torch.cat((ta_state, geometry_state), dim=1).flatten(2)
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
+    px, py = xs + motion[:, 0], ys + motion[:, 1]
+    x0, y0 = torch.floor(px), torch.floor(py)
+    ax, ay = (px - x0).unsqueeze(1), (py - y0).unsqueeze(1)
+    ex, ey = 1.0 - ax, 1.0 - ay
+    acc = torch.zeros_like(ta_state)
+    total = torch.zeros_like(depth)
+    for ox, oy, weight in ((0, 0, ex * ey), (1, 0, ax * ey), (0, 1, ex * ay), (1, 1, ax * ay)):
+        fx, fy = x0 + ox, y0 + oy
+        g = _tap_values(flat, fx, fy)
+        inside = ((fx >= 0) & (fx <= w - 1) & (fy >= 0) & (fy <= h - 1)).unsqueeze(1)
+        prev_normal, prev_depth = g[:, c1 : c1 + 3], g[:, c1 + 3 : c1 + 4]
+        depth_ok = (prev_depth - depth).abs() < config.depth_tolerance * depth.abs()
+        normal_ok = (prev_normal * normal).sum(dim=1, keepdim=True) > config.normal_threshold
+        ok = inside & depth_ok & normal_ok
+        weight = torch.where(ok, weight, torch.zeros_like(weight))
+        acc = acc + weight * torch.where(ok, g[:, :c1], torch.zeros_like(g[:, :c1]))
+        total = total + weight
+    accepted = total >= 0.01
+    warped = acc / torch.where(accepted, total, torch.ones_like(total))
+    valid = accepted.to(depth.dtype) * (1.0 - reset)  # reset = 1 ignores the history
+    return torch.where(valid > 0.5, warped, torch.zeros_like(warped)), valid
+
+
 def temporal_step(
     current: torch.Tensor,
     motion: torch.Tensor,
@@ -116,13 +177,19 @@ def temporal_step(
     ta_state: (N, C + 1, H, W) previous accumulation and its history length;
     geometry_state: (N, 4, H, W) previous normal (3) and depth (1).
     Returns (accumulated (N, C, H, W), blend weight a (N, 1, H, W), next ta_state,
-    next geometry_state).
+    next geometry_state). config.per_tap (a Python int) picks the reprojection (module
+    docstring): 0 warps the whole state and tests it once per pixel, 1 tests each tap.
     """
     c = current.shape[1]
-    warped = reproject(torch.cat((ta_state, geometry_state), dim=1), motion)
+    if config.per_tap:
+        warped, valid = per_tap_history(
+            motion, depth, normal, ta_state, geometry_state, reset, config
+        )
+    else:
+        warped = reproject(torch.cat((ta_state, geometry_state), dim=1), motion)
+        prev_normal, prev_depth = warped[:, c + 1 : c + 4], warped[:, c + 4 : c + 5]
+        valid = history_validity(motion, depth, normal, prev_depth, prev_normal, reset, config)
     history, history_len = warped[:, :c], warped[:, c : c + 1]
-    prev_normal, prev_depth = warped[:, c + 1 : c + 4], warped[:, c + 4 : c + 5]
-    valid = history_validity(motion, depth, normal, prev_depth, prev_normal, reset, config)
     acc, new_len, alpha = accumulate(current, history, history_len, valid, config)
     next_ta = torch.cat((acc, new_len), dim=1)
     next_geometry = torch.cat((normal, depth), dim=1)

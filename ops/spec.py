@@ -68,6 +68,10 @@ class OpSpec:
         for the three-form tests and the stage benchmark.
     default_attrs: typical attribute values (benchmarks); example_attrs and example_shapes:
         the attribute sets and image shapes the generic three-form test runs.
+    optional_attrs: attributes added after models were exported and shipped without them,
+        with the value a node or call that omits one takes (the old behaviour): every form
+        and bridge fills them in (`with_optional`), so an old .onnx file keeps running; the
+        exporter still writes every attribute.
     """
 
     name: str
@@ -81,10 +85,17 @@ class OpSpec:
     default_attrs: Mapping[str, int] = field(default_factory=dict)
     example_attrs: tuple[Mapping[str, int], ...] = ()
     example_shapes: tuple[tuple[int, int, int, int], ...] = ((1, 3, 13, 17), (2, 1, 8, 6))
+    optional_attrs: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if set(self.default_attrs) != set(self.attrs):
             raise ValueError(f"{self.name}: default_attrs must give every attribute {self.attrs}")
+        if not set(self.optional_attrs) <= set(self.attrs):
+            raise ValueError(f"{self.name}: optional_attrs must be attributes {self.attrs}")
+
+    def with_optional(self, attrs: Mapping[str, int]) -> dict[str, int]:
+        """`attrs` with every omitted optional attribute set to its value (`optional_attrs`)."""
+        return {**self.optional_attrs, **attrs}
 
     @property
     def torch_name(self) -> str:
@@ -104,17 +115,20 @@ class OpSpec:
 
     def split_args(self, args: Sequence, attrs: Mapping[str, int]) -> tuple[list, dict[str, int]]:
         """(inputs, attributes) of a call `op(*args, **attrs)`: arguments after the inputs
-        are attributes in spec order."""
+        are attributes in spec order; omitted optional attributes take their values."""
         n = len(self.inputs)
         extra = dict(zip(self.attrs, args[n:], strict=False))
         if len(args) > n + len(self.attrs) or set(extra) & set(attrs):
             raise ValueError(f"{self.name}: too many arguments or an attribute given twice")
-        return list(args[:n]), {k: int(v) for k, v in {**extra, **attrs}.items()}
+        values = self.with_optional({**extra, **attrs})
+        return list(args[:n]), {k: int(v) for k, v in values.items()}
 
     def validate_call(self, shapes: Sequence[Shape], attrs: Attrs) -> None:
-        """ValueError unless `shapes` and `attrs` are a valid call of this op."""
+        """ValueError unless `shapes` and `attrs` are a valid call of this op (an omitted
+        optional attribute takes its value)."""
         if len(shapes) != len(self.inputs):
             raise ValueError(f"{self.name} takes {len(self.inputs)} inputs, got {len(shapes)}")
+        attrs = self.with_optional(attrs)
         if set(attrs) != set(self.attrs):
             raise ValueError(
                 f"{self.name} takes attributes {list(self.attrs)}, got {sorted(attrs)}"

@@ -1,19 +1,43 @@
 """TemporalAccumulation: one step of the accumulating families' temporal accumulation (TA).
 
+Attribute per_tap selects how the previous state is reprojected and tested (optional on a node:
+an omitted one is 0, so models exported before it existed run as before).
+
+per_tap = 0 (bilinear; every shipped model): the whole state is warped, then the
+*interpolated* previous depth and normal are tested once per pixel:
+
     warped = Reproject([ta_state, geometry_state], motion)      (rtdenoise.ops.reproject)
     history, history_len, prev_normal, prev_depth = the channels of warped
     valid = in_bounds(motion) & |prev_depth - depth| < depth_tolerance |depth|
             & <prev_normal, normal> > normal_threshold, and reset == 0
+
+per_tap = 1 (SVGF, Schied17 s.4.1; BMFR): each of the four bilinear taps around the previous
+position p = (x + mx, y + my) is tested on its own against the current pixel and the bilinear
+weights are renormalised over the accepted taps:
+
+    taps t = (x0 + i, y0 + j), i, j in {0, 1}, (x0, y0) = floor(p), a = p - (x0, y0),
+    w_t = (1 - a_x)(1 - a_y), a_x (1 - a_y), (1 - a_x) a_y, a_x a_y   (nw, ne, sw, se)
+    ok_t = t inside [0, W - 1] x [0, H - 1] & |depth_prev[t] - depth| < depth_tolerance |depth|
+           & <normal_prev[t], normal> > normal_threshold
+    total = sum w_t over ok_t;   [history, history_len] = sum_{ok_t} w_t ta_state[t] / total
+    valid = total >= 0.01 (the accepted taps' weight, as in SVGF; 0 when no tap passes),
+            and reset == 0
+
+(no separate in-bounds test: a position within a pixel of the border keeps its inside taps;
+the taps' values are never interpolated across a rejected tap, so a silhouette's background
+taps stay out of a foreground pixel's history). Then, either way:
+
     n = history_len where valid else 0;   h = history where valid else 0
     alpha = max(1 / (n + 1), min_alpha)               (Lee24 III-A after Meng20, Fan21, BMFR)
     accumulated = alpha current + (1 - alpha) h;      blend = alpha
     next_ta = [accumulated, min(n + 1, max_history)];  next_geometry = [normal, depth]
 
 in_bounds: the previous position (x + mx, y + my) lies within [-0.5, W - 0.5] x [-0.5, H - 0.5].
-An invalid history is dropped by selection, never multiplied by 0, so a non-finite history
-cannot leak into the output. The whole step as one op: in ONNX Runtime the same arithmetic in
-standard ops took about 40 small nodes (concatenations, slices, comparisons, Where) per frame.
-`rtdenoise.models.temporal` documents the scheme; its functions are the torch form.
+An invalid history (or tap) is dropped by selection, never multiplied by 0, so a non-finite
+history cannot leak into the output. The whole step as one op: in ONNX Runtime the same
+arithmetic in standard ops took about 40 small nodes (concatenations, slices, comparisons,
+Where) per frame. `rtdenoise.models.temporal` documents the scheme; its functions are the
+torch form.
 """
 
 from __future__ import annotations
@@ -27,6 +51,8 @@ SCALARS = ("reset", "depth_tolerance", "normal_threshold", "min_alpha", "max_his
 
 
 def _check(shapes, attrs) -> None:
+    if attrs["per_tap"] not in (0, 1):
+        raise ValueError(f"TemporalAccumulation: per_tap is {attrs['per_tap']}; expected 0 or 1")
     same_nhw("TemporalAccumulation", shapes[: len(IMAGES)], IMAGES)
     c = shapes[0][1]
     expected = {"motion": 2, "depth": 1, "normal": 3, "ta_state": c + 1, "geometry_state": 4}
@@ -80,9 +106,14 @@ SPEC = OpSpec(
     name="TemporalAccumulation",
     doc="accumulated = a current + (1 - a) history (a = max(1 / (n + 1), min_alpha), n the "
     "history length) where the history Reproject-ed by motion is in bounds and agrees in depth "
-    "and normal, else current; outputs accumulated, a, next TA state, next geometry",
+    "and normal (per_tap=1: each bilinear tap tested, weights renormalised over the accepted "
+    "ones, SVGF), else current; outputs accumulated, a, next TA state, next geometry",
     inputs=(*(Arg(name) for name in IMAGES), *(Arg(name, 0) for name in SCALARS)),
     outputs=(Arg("accumulated"), Arg("blend"), Arg("next_ta"), Arg("next_geometry")),
+    attrs=("per_tap",),
+    default_attrs={"per_tap": 0},
+    example_attrs=({"per_tap": 0}, {"per_tap": 1}),
+    optional_attrs={"per_tap": 0},  # models exported before per_tap existed
     output_shapes=_output_shapes,
     check=_check,
     example_inputs=_example_inputs,

@@ -1,6 +1,7 @@
 """A minimal reader of the protobuf wire format, for what the runtime reads of an ONNX file
 without the `onnx` package (which it must not need): external-data locations
-(`external_data.py`) and the custom nodes' recorded shapes (`static_check.py`)."""
+(`external_data.py`) and the custom nodes' recorded shapes (`static_check.py`); and the few
+writers that `static_check.fill_optional_attributes` needs to add an attribute to a node."""
 
 from __future__ import annotations
 
@@ -55,3 +56,43 @@ def payloads(buf: memoryview) -> Iterator[tuple[int, memoryview]]:
     for number, value in fields(buf):
         if isinstance(value, memoryview):
             yield number, value
+
+
+def spans(buf: memoryview) -> Iterator[tuple[int, int, int, int | memoryview | None]]:
+    """(field number, start, end, value) of one message's fields: `fields` with each field's
+    byte span [start, end) in `buf` (its key included), to copy the fields left unchanged."""
+    i = 0
+    for number, value in fields(buf):
+        start = i
+        _, i = varint(buf, i)  # the key
+        if isinstance(value, memoryview):
+            size, i = varint(buf, i)
+            i += size
+        elif value is None:
+            i += 8 if (buf[start] & 7) == 1 else 4
+        else:
+            _, i = varint(buf, i)
+        yield number, start, i, value
+
+
+def encode_varint(value: int) -> bytes:
+    """The varint of a non-negative int below 2^64 (a negative int64: add 2^64 first)."""
+    out = bytearray()
+    while True:
+        b = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def length_delimited(number: int, payload: bytes) -> bytes:
+    """Field `number` holding `payload` (a string, bytes or a nested message)."""
+    return encode_varint(number << 3 | 2) + encode_varint(len(payload)) + payload
+
+
+def varint_field(number: int, value: int) -> bytes:
+    """Field `number` holding the int `value` (int64 two's complement when negative)."""
+    return encode_varint(number << 3) + encode_varint(value % (1 << 64))

@@ -24,7 +24,7 @@ from .errors import InputError
 from .external_data import check_external_data
 from .memory import share_cpu_arena
 from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities
-from .static_check import check_custom_nodes, custom_op_types
+from .static_check import check_custom_nodes, custom_op_types, fill_optional_attributes
 
 ModelSource = str | os.PathLike | bytes
 Provider = str | tuple[str, dict[str, Any]]
@@ -50,6 +50,8 @@ _DEVICE_OF_PROVIDER = {
 # time slice) cost more than they save (docs/architecture.md, "Threads").
 SERIAL_KERNELS_BELOW = 256 * 256
 ALLOW_SPINNING = "session.intra_op.allow_spinning"  # ORT session config key, "0" or "1"
+# ORT session config key: where a model loaded from bytes finds its external data files.
+EXTERNAL_DATA_FOLDER = "session.model_external_initializers_file_folder_path"
 
 
 def kernel_thread_count(
@@ -202,6 +204,8 @@ def open_session(
         bridge = register_fast_kernels(
             options, fast_kernels if isinstance(fast_kernels, str) else None, ops
         )
+    if bridge == "extensions":  # it refuses a node that omits an optional attribute
+        payload = _optional_attributes_written(payload, options)
     if spinning is None and bridge:
         spinning = False  # idle ORT workers would spin while a kernel needs the cores
     if spinning is not None:
@@ -229,6 +233,19 @@ def open_session(
         shared_arena=shared,
         device=_state_device(session, got),
     )
+
+
+def _optional_attributes_written(payload: str | bytes, options: ort.SessionOptions) -> str | bytes:
+    """`payload`, or its bytes with the omitted optional attributes of its rtdenoise nodes
+    written out (`static_check.fill_optional_attributes`); a file's external data is then
+    looked up beside the file."""
+    data = payload if isinstance(payload, bytes) else Path(payload).read_bytes()
+    filled = fill_optional_attributes(data)
+    if filled is None:
+        return payload
+    if not isinstance(payload, bytes):
+        options.add_session_config_entry(EXTERNAL_DATA_FOLDER, str(Path(payload).parent))
+    return filled
 
 
 def _state_device(session: ort.InferenceSession, providers: list[str]) -> tuple[str, int] | None:

@@ -20,13 +20,13 @@ import ast
 from rtdenoise.ops import DOMAIN, SPECS
 
 from .errors import InputError
-from .protobuf import Malformed, fields, varint
+from .protobuf import Malformed, fields, length_delimited, spans, varint, varint_field
 
 # Field numbers (onnx/onnx.proto3).
 _MODEL_GRAPH = 7
 _GRAPH_NODE, _GRAPH_INIT, _GRAPH_INPUT, _GRAPH_OUTPUT, _GRAPH_VALUE_INFO = 1, 5, 11, 12, 13
 _NODE_INPUT, _NODE_OP, _NODE_DOMAIN, _NODE_ATTR, _NODE_NAME = 1, 4, 7, 5, 3
-_ATTR_NAME, _ATTR_I = 1, 3
+_ATTR_NAME, _ATTR_I, _ATTR_TYPE, _ATTR_INT = 1, 3, 20, 2  # AttributeProto.INT = 2
 _VI_NAME, _VI_TYPE, _TYPE_TENSOR, _TENSOR_SHAPE, _SHAPE_DIM = 1, 2, 1, 2, 1
 _DIM_VALUE, _DIM_PARAM = 1, 2
 _INIT_DIMS, _INIT_NAME = 1, 8
@@ -226,3 +226,59 @@ def _evaluate(expr: str, value: int) -> int | None:
 
 
 __all__ = ["check_custom_nodes"]
+
+
+def fill_optional_attributes(data: bytes) -> bytes | None:
+    """The model with each omitted optional attribute (`OpSpec.optional_attrs`) of its main
+    graph's rtdenoise nodes written out with its value; None when no node omits one (or the
+    bytes are not a model). onnxruntime-extensions refuses a node without one of the op's
+    declared attributes, so a model exported before the attribute existed (every shipped demo
+    lacks TemporalAccumulation's per_tap) is loaded through this on that bridge."""
+    try:
+        if DOMAIN.encode() not in data:
+            return None
+        buf = memoryview(data)
+        out, changed = bytearray(), False
+        for n, start, end, v in spans(buf):
+            graph = _filled_graph(v) if n == _MODEL_GRAPH and isinstance(v, memoryview) else None
+            changed |= graph is not None
+            out += buf[start:end] if graph is None else length_delimited(n, graph)
+        return bytes(out) if changed else None
+    except Malformed:
+        return None
+
+
+def _filled_graph(graph: memoryview) -> bytes | None:
+    out, changed = bytearray(), False
+    for n, start, end, v in spans(graph):
+        node = _filled_node(v) if n == _GRAPH_NODE and isinstance(v, memoryview) else None
+        changed |= node is not None
+        out += graph[start:end] if node is None else length_delimited(n, node)
+    return bytes(out) if changed else None
+
+
+def _filled_node(node: memoryview) -> bytes | None:
+    op, domain, names = "", "", set()
+    for fn, fv in fields(node):
+        if fn == _NODE_OP:
+            op = _text(fv)
+        elif fn == _NODE_DOMAIN:
+            domain = _text(fv)
+        elif fn == _NODE_ATTR and isinstance(fv, memoryview):
+            names.update(_text(av) for an, av in fields(fv) if an == _ATTR_NAME)
+    spec = SPECS.get(op)
+    if domain != DOMAIN or spec is None:
+        return None
+    missing = [a for a in spec.optional_attrs if a not in names]
+    if not missing:
+        return None
+    added = b"".join(
+        length_delimited(
+            _NODE_ATTR,
+            length_delimited(_ATTR_NAME, a.encode())
+            + varint_field(_ATTR_I, spec.optional_attrs[a])
+            + varint_field(_ATTR_TYPE, _ATTR_INT),
+        )
+        for a in missing
+    )
+    return bytes(node) + added

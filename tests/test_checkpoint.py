@@ -125,3 +125,25 @@ def test_unknown_family_and_bad_state_dict(tmp_path, model):
     torch.save(dict(good, state_dict=wider), path)
     with pytest.raises(CheckpointError, match=r"fam\.pt: state_dict does not match"):
         load_checkpoint(path)
+
+
+@pytest.mark.parametrize("family", ["afn", "wskp", "nbg"])
+def test_shipped_checkpoints_load_with_the_bilinear_reprojection(family):
+    """The demos were saved before AccumulatingConfig.reprojection existed: they load as
+    "bilinear" (what they were trained with), and the field round-trips once set."""
+    from pathlib import Path
+
+    path = Path(rtdenoise.__file__).parent / "assets" / "models" / f"{family}.pt"
+    assert "reprojection" not in read_checkpoint(path)["config"]
+    loaded, _ = load_checkpoint(path)
+    assert loaded.cfg.reprojection == "bilinear" and loaded.cfg.temporal().per_tap == 0
+
+
+def test_reprojection_round_trips_and_bad_values_are_refused(tmp_path):
+    torch.manual_seed(0)
+    model = build_model("afn", {**SMALL, "reprojection": "per_tap"})
+    assert model.cfg.temporal().per_tap == 1
+    loaded, _ = load_checkpoint(save_checkpoint(tmp_path / "m.pt", model, {}))
+    assert loaded.cfg.reprojection == "per_tap" and loaded.config() == model.config()
+    with pytest.raises(ValueError, match="reprojection must be one of 'bilinear', 'per_tap'"):
+        build_model("wskp", {"reprojection": "nearest"})

@@ -91,9 +91,13 @@ SCRIPT_DENOISER = PATCH + textwrap.dedent(
     # A host driving its own session with the kernels registered.
     import onnxruntime as ort
     from rtdenoise.runtime import bridge as fast_bridge
+    from rtdenoise.runtime.static_check import fill_optional_attributes
     so = ort.SessionOptions()
     fast_bridge.register_fast_kernels(so, BRIDGE)
-    sess = ort.InferenceSession(clean.source, so)
+    # onnxruntime-extensions needs every declared attribute on the node: demo:wskp predates
+    # TemporalAccumulation's per_tap, so a host on that bridge writes it out (Denoiser does)
+    data = open(clean.source, "rb").read()
+    sess = ort.InferenceSession(fill_optional_attributes(data) or data, so)
     feeds = {k: v[None] for k, v in frames[0].items()}
     feeds["reset"] = np.array(1.0, np.float32)
     for s in clean.state_specs:

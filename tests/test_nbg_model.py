@@ -183,7 +183,7 @@ def test_exports_three_grid_nodes_and_matches_ort_over_eight_frames():
     proto = export_model(model)
     nodes = [n for n in proto.graph.node if n.domain == "rtdenoise"]
     assert [(n.op_type, {a.name: a.i for a in n.attribute}) for n in nodes] == [
-        ("TemporalAccumulation", {})  # the history warp and blend
+        ("TemporalAccumulation", {"per_tap": 0})  # the history warp and blend (bilinear)
     ] + [
         ("BilateralGrid", {"cell_size": s, "grid_depth": d})
         for s, d in zip(model.cfg.cell_sizes, model.cfg.grid_depths, strict=True)

@@ -66,7 +66,11 @@ def test_onnx_form_matches_spec(name):
     assert (func.domain, func.name) == ("rtdenoise", name)
     assert list(func.input) == list(spec.input_names)
     assert list(func.output) == list(spec.output_names)
-    assert list(func.attribute) == list(spec.attrs)
+    # an optional attribute (spec.optional_attrs) is an attribute_proto carrying its value
+    required = [a for a in spec.attrs if a not in spec.optional_attrs]
+    assert list(func.attribute) == required
+    assert {a.name: a.i for a in func.attribute_proto} == dict(spec.optional_attrs)
+    assert {a for a, s in form.schema.attributes.items() if s.required} == set(required)
     assert all(n.domain in ("", "ai.onnx") for n in func.node)  # standard ops only
     (node,) = model.graph.node
     assert {a.name for a in node.attribute} == set(spec.attrs)

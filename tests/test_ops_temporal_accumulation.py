@@ -1,12 +1,16 @@
 """TemporalAccumulation: every form gives all four outputs of the torch form (models.temporal),
-the fast kernel to the bit, and the models' opening calls it once per frame."""
+the fast kernel to the bit, with either reprojection (per_tap 0 and 1); per_tap=1 in every
+form matches an independent numpy spelling of SVGF's per-tap test (Schied17 s.4.1) on a
+disocclusion edge, all taps rejected, taps off-screen and reset; a node without per_tap (a
+model exported before it) runs the bilinear scheme on every path."""
 
 from __future__ import annotations
 
 import numpy as np
+import onnx
 import pytest
 import torch
-from op_forms import session
+from op_forms import native_cpp_holds, rel_err, session
 
 from rtdenoise.models.ops import TORCH_OPS
 from rtdenoise.ops import get_spec
@@ -24,18 +28,20 @@ def _inputs(shape: tuple[int, int, int, int], seed: int, reset: float = 0.0) -> 
 
 @pytest.mark.parametrize("shape", [(1, 3, 13, 17), (2, 1, 8, 6), (1, 3, 32, 48)])
 @pytest.mark.parametrize("reset", [0.0, 1.0])
-def test_every_form_gives_every_output(shape, reset) -> None:
+@pytest.mark.parametrize("per_tap", [0, 1])
+def test_every_form_gives_every_output(shape, reset, per_tap) -> None:
     inputs = _inputs(shape, sum(shape), reset)
     with torch.no_grad():
-        ref = [t.numpy() for t in TORCH_OPS[OP].reference(*map(torch.from_numpy, inputs))]
+        tensors = map(torch.from_numpy, inputs)
+        ref = [t.numpy() for t in TORCH_OPS[OP].reference(*tensors, per_tap=per_tap)]
     blend = ref[1]
     assert 0.0 < (blend < 1.0).mean() < 1.0 or reset  # some pixels keep their history
     assert reset == 0.0 or (blend == 1.0).all()
     feed = dict(zip(get_spec(OP).input_names, inputs, strict=True))
     forms = {
-        "numba": KERNELS[OP](*inputs),
+        "numba": KERNELS[OP](*inputs, per_tap=per_tap),
         **{
-            b or "portable": session(OP, (), b).run(None, feed)
+            b or "portable": session(OP, (("per_tap", per_tap),), b).run(None, feed)
             for b in ("", "native", "extensions")
         },
     }
@@ -49,19 +55,289 @@ def test_every_form_gives_every_output(shape, reset) -> None:
                 np.testing.assert_array_equal(got, want, err_msg=form)
 
 
-def test_nonfinite_history_is_dropped_where_invalid() -> None:
+@pytest.mark.parametrize("per_tap", [0, 1])
+def test_nonfinite_history_is_dropped_where_invalid(per_tap) -> None:
     """An invalid history is selected away, never multiplied by 0: a NaN history leaves the
     pixels that reject it finite (where it is valid it is used, as in the torch form; the
     runtime keeps NaN out of the state, tests/test_guard*.py)."""
     inputs = _inputs((1, 3, 16, 16), 5)
     inputs[4][:, :3] = np.nan  # every accumulated value of the history
     inputs[4][:, 3] = np.maximum(inputs[4][:, 3], 1.0)  # so blend 1 means: rejected
-    outs = KERNELS[OP](*inputs)
+    outs = KERNELS[OP](*inputs, per_tap=per_tap)
     fresh = outs[1][:, 0] == 1.0  # the history was rejected
     assert 0 < fresh.mean() < 1
     assert np.isfinite(outs[0].transpose(1, 0, 2, 3)[:, fresh]).all()
     assert np.isnan(outs[0].transpose(1, 0, 2, 3)[:, ~fresh]).all()
     with torch.no_grad():
-        ref = TORCH_OPS[OP].reference(*map(torch.from_numpy, inputs))
+        ref = TORCH_OPS[OP].reference(*map(torch.from_numpy, inputs), per_tap=per_tap)
     for got, want in zip(outs, ref, strict=True):
         np.testing.assert_array_equal(got, want.numpy())
+
+
+# ------------------------------------------------- per_tap = 1 against an independent spelling
+
+
+def svgf_per_tap_numpy(inputs: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """SVGF's reprojection (Schied17 s.4.1) with TemporalAccumulation's tests, written from the
+    description, pixel by pixel in float64: the four pixels around the previous position
+    p = (x + mx, y + my) are the bilinear taps; a tap counts if it lies in the previous frame,
+    its depth is within depth_tolerance |depth| of the current pixel's and its normal's dot
+    with the current normal exceeds normal_threshold; the history (colour and length) is the
+    bilinear average over the counted taps, their weights renormalised, and is dropped where
+    the counted taps weigh under 0.01 (no tap counts, in particular) or reset is 1. Then
+    alpha = max(1 / (n + 1), min_alpha). Returns the four outputs, the number of counted taps
+    per pixel among those of nonzero weight (N, H, W) and where the history was kept."""
+    current, motion, depth, normal, ta, geo = (x.astype(np.float64) for x in inputs[:6])
+    reset, tol, thr, min_alpha, max_history = (float(x) for x in inputs[6:])
+    n_img, c, h, w = current.shape
+    acc = np.zeros_like(current)
+    blend = np.zeros((n_img, 1, h, w))
+    next_ta = np.zeros((n_img, c + 1, h, w))
+    counted = np.zeros((n_img, h, w), np.int64)
+    kept = np.zeros((n_img, h, w), bool)
+    for n in range(n_img):
+        for y in range(h):
+            for x in range(w):
+                px, py = x + motion[n, 0, y, x], y + motion[n, 1, y, x]
+                x0, y0 = int(np.floor(px)), int(np.floor(py))
+                fx, fy = px - x0, py - y0
+                d, nrm = depth[n, 0, y, x], normal[n, :, y, x]
+                total, history = 0.0, np.zeros(c + 1)
+                for tx, ty, weight in (
+                    (x0, y0, (1 - fx) * (1 - fy)),
+                    (x0 + 1, y0, fx * (1 - fy)),
+                    (x0, y0 + 1, (1 - fx) * fy),
+                    (x0 + 1, y0 + 1, fx * fy),
+                ):
+                    if not (0 <= tx < w and 0 <= ty < h):
+                        continue
+                    if not abs(geo[n, 3, ty, tx] - d) < tol * abs(d):
+                        continue
+                    if not np.dot(geo[n, :3, ty, tx], nrm) > thr:
+                        continue
+                    total += weight
+                    history += weight * ta[n, :, ty, tx]
+                    counted[n, y, x] += weight > 0
+                kept[n, y, x] = reset == 0.0 and total >= 0.01
+                if kept[n, y, x]:
+                    history /= total
+                else:
+                    history[:] = 0.0
+                alpha = max(1.0 / (history[c] + 1.0), min_alpha)
+                acc[n, :, y, x] = alpha * current[n, :, y, x] + (1 - alpha) * history[:c]
+                blend[n, 0, y, x] = alpha
+                next_ta[n, :c, y, x] = acc[n, :, y, x]
+                next_ta[n, c, y, x] = min(history[c] + 1.0, max_history)
+    next_geometry = np.concatenate([normal, depth], axis=1)
+    return [acc, blend, next_ta, next_geometry], counted, kept
+
+
+def _every_form(inputs: list[np.ndarray], per_tap: int) -> dict[str, list[np.ndarray]]:
+    """{form: the four outputs}: torch, portable ORT, ORT with numba (native and extensions
+    bridges), numba called directly and, where built, the C++ library."""
+    feed = dict(zip(get_spec(OP).input_names, inputs, strict=True))
+    attrs = (("per_tap", per_tap),)
+    with torch.no_grad():
+        ref = TORCH_OPS[OP].reference(*map(torch.from_numpy, inputs), per_tap=per_tap)
+    forms = {
+        "torch": [t.numpy() for t in ref],
+        "numba": list(KERNELS[OP](*inputs, per_tap=per_tap)),
+    }
+    bridges = ["", "native", "extensions"] + (["native-cpp"] if native_cpp_holds(OP) else [])
+    for b in bridges:
+        forms[b or "portable"] = session(OP, attrs, b).run(None, feed)
+    return forms
+
+
+def _frame(h: int = 16, w: int = 16, c: int = 3, motion=(0.5, 0.5)) -> list[np.ndarray]:
+    """A flat frame facing the camera (normal +z, depth 2) whose previous frame equals it,
+    a constant motion, history colour (x + w y) / (h w) (a value per pixel, in [0, 1)) per
+    channel, history length 8."""
+    f32 = np.float32
+    ys, xs = np.mgrid[0:h, 0:w].astype(f32)
+    normal = np.zeros((1, 3, h, w), f32)
+    normal[:, 2] = 1.0
+    depth = np.full((1, 1, h, w), 2.0, f32)
+    history = np.broadcast_to((xs + w * ys) / (h * w), (1, c, h, w))
+    ta_state = np.concatenate([history, np.full((1, 1, h, w), 8.0, f32)], axis=1)
+    mv = np.stack([np.full((h, w), motion[0], f32), np.full((h, w), motion[1], f32)])[None]
+    current = np.random.default_rng(0).random((1, c, h, w), dtype=f32)
+    scalars = [0.0, 0.1, 0.9, 0.2, 64.0]  # reset, depth / normal tests, min_alpha, max_history
+    return [
+        current,
+        mv.astype(f32),
+        depth,
+        normal,
+        ta_state.astype(f32),
+        np.concatenate([normal, depth], axis=1),
+        *(np.array(s, f32) for s in scalars),
+    ]
+
+
+def _disocclusion() -> list[np.ndarray]:
+    """A foreground square (depth 2) over a background (depth 6) in both frames, motion half a
+    pixel on both axes: along the square's edges 2 of the 4 taps (weights 1/4 each) see the
+    other surface, at its corners 1 or 3."""
+    inputs = _frame()
+    depth = np.full((1, 1, 16, 16), 6.0, np.float32)
+    depth[:, :, 4:11, 4:11] = 2.0
+    inputs[2] = depth
+    inputs[5] = np.concatenate([inputs[3], depth], axis=1)
+    return inputs
+
+
+def _all_rejected() -> list[np.ndarray]:
+    """The previous frame saw another surface everywhere (depth 4 vs 2): no tap passes."""
+    inputs = _disocclusion()
+    inputs[5] = inputs[5].copy()
+    inputs[5][:, 3] = 2.0 * inputs[2][:, 0]
+    return inputs
+
+
+def _off_screen() -> list[np.ndarray]:
+    """Motion left and up by 0.25 to 2.5 px, varying per pixel, plus random geometry noise:
+    border pixels have taps outside the previous frame, some all of them."""
+    inputs = _frame()
+    rng = np.random.default_rng(7)
+    inputs[1] = -rng.uniform(0.25, 2.5, (1, 2, 16, 16)).astype(np.float32)
+    inputs[4][:, 3] = rng.integers(1, 80, (1, 16, 16))
+    return inputs
+
+
+def _reset() -> list[np.ndarray]:
+    inputs = _disocclusion()
+    inputs[6] = np.array(1.0, np.float32)
+    return inputs
+
+
+def _random() -> list[np.ndarray]:
+    """The spec's example inputs (a quarter of the previous pixels on another surface, motion
+    within 2 px, a tenth far off-screen) at 16 x 16."""
+    return get_spec(OP).example_inputs((2, 3, 16, 16), {}, np.random.default_rng(3))
+
+
+PER_TAP_CASES = {
+    "disocclusion": _disocclusion,
+    "all_rejected": _all_rejected,
+    "off_screen": _off_screen,
+    "reset": _reset,
+    "random": _random,
+}
+
+
+@pytest.mark.parametrize("case", sorted(PER_TAP_CASES))
+def test_per_tap_every_form_matches_an_independent_svgf_spelling(case) -> None:
+    inputs = PER_TAP_CASES[case]()
+    expected, counted, kept = svgf_per_tap_numpy(inputs)
+    forms = _every_form(inputs, per_tap=1)
+    assert "portable" in forms and "native" in forms and "numba" in forms
+    for form, outs in forms.items():
+        assert len(outs) == 4, form
+        for o, (got, want) in enumerate(zip(outs, expected, strict=True)):
+            assert got.shape == want.shape and got.dtype == np.float32, (form, o)
+            # float32 vs float64: within 1e-5 of max(1, the output's largest value)
+            assert rel_err(got, want) <= 1e-5, (form, o, rel_err(got, want))
+    blend = expected[1][:, 0]
+    if case in ("all_rejected", "reset"):  # history dropped: length 0, alpha 1, current
+        assert (blend == 1.0).all() and (expected[2][:, -1] == 1.0).all()
+        np.testing.assert_array_equal(forms["torch"][0], inputs[0])
+    if case == "off_screen":
+        assert 0 < kept.mean() < 1  # some pixels keep part of their history, some none
+        assert (kept <= (counted > 0)).all() and (counted[kept] < 4).any()
+        assert (blend[~kept] == 1.0).all() and (blend[kept] < 1.0).all()
+
+
+def test_per_tap_differs_from_bilinear_where_some_taps_fail() -> None:
+    """At the square's edge and corners (1 to 3 of 4 taps on the other surface) per_tap keeps
+    the foreground taps only, renormalised; the bilinear scheme tests the interpolated depth
+    (a mix of 2 and 6) and keeps or drops the whole interpolated history: the results differ
+    there and agree where all 4 taps pass."""
+    inputs = _disocclusion()
+    _, counted, _ = svgf_per_tap_numpy(inputs)
+    assert {1, 2, 3} <= set(np.unique(counted).tolist())  # corners and edges
+    per_tap = _every_form(inputs, per_tap=1)
+    bilinear = _every_form(inputs, per_tap=0)
+    partial = (counted[0] > 0) & (counted[0] < 4)
+    # the last row and column: their off-screen taps are rejected, but there the bilinear
+    # scheme's clamped position reads the same pixels (within half a pixel of the border)
+    partial[-1, :] = partial[:, -1] = False
+    assert partial.sum() >= 20
+    for form in per_tap:
+        a, b = per_tap[form][2][0], bilinear[form][2][0]  # next_ta (C + 1, H, W)
+        differs = np.abs(a - b).max(axis=0) > 1e-3
+        assert differs[partial].all(), form
+        np.testing.assert_array_equal(a[:, counted[0] == 4], b[:, counted[0] == 4], err_msg=form)
+
+
+def _without_per_tap(with_function: bool):
+    """A one-node model whose node has no per_tap attribute, as exported before it existed."""
+    from rtdenoise.export import ops as eops
+
+    model = eops.single_op_model(OP, None, {"per_tap": 0}, with_function=with_function)
+    node = model.graph.node[0]
+    del node.attribute[:]
+    assert not [a for a in model.graph.node[0].attribute if a.name == "per_tap"]
+    return model
+
+
+def test_a_node_without_per_tap_runs_bilinear_on_every_path() -> None:
+    """The native bridges and the function body give an omitted per_tap its value 0;
+    onnxruntime-extensions refuses a node without a declared attribute, so the runtime writes
+    it out before loading a model on that bridge (`fill_optional_attributes`, which
+    `open_session` calls there)."""
+    import onnxruntime as ort
+
+    from rtdenoise.runtime import bridge as fast_bridge
+    from rtdenoise.runtime.static_check import fill_optional_attributes
+
+    inputs = _disocclusion()
+    feed = dict(zip(get_spec(OP).input_names, inputs, strict=True))
+    bilinear = _every_form(inputs, per_tap=0)["torch"]
+    bridges = ["", "native", "extensions"] + (["native-cpp"] if native_cpp_holds(OP) else [])
+    for b in bridges:
+        data = _without_per_tap(with_function=b != "native-cpp").SerializeToString()
+        if b == "extensions":
+            filled = fill_optional_attributes(data)
+            assert filled is not None and fill_optional_attributes(filled) is None
+            (node,) = onnx.load_from_string(filled).graph.node
+            assert [(a.name, a.i) for a in node.attribute] == [("per_tap", 0)]
+            data = filled
+        else:
+            assert fill_optional_attributes(data) is not None
+        so = ort.SessionOptions()
+        if b:
+            assert fast_bridge.register_fast_kernels(so, b, [OP]) == b
+        sess = ort.InferenceSession(data, so, providers=["CPUExecutionProvider"])
+        before = fast_bridge.CALLS[OP]
+        outs = sess.run(None, feed)
+        assert fast_bridge.CALLS[OP] - before == (1 if b in ("native", "extensions") else 0), b
+        for got, want in zip(outs, bilinear, strict=True):
+            np.testing.assert_array_equal(got, want, err_msg=b or "portable")
+    with pytest.raises(ValueError, match="per_tap is 2"):
+        KERNELS[OP](*inputs, per_tap=2)
+
+
+def test_shipped_demo_runs_on_the_extensions_bridge_with_per_tap_written_out() -> None:
+    """demo:afn was exported before per_tap: its TemporalAccumulation node gets per_tap=0
+    written out for onnxruntime-extensions, every other byte of the model kept."""
+    from rtdenoise.runtime.session import resolve_model
+    from rtdenoise.runtime.static_check import fill_optional_attributes
+
+    data = resolve_model("demo:afn").read_bytes()
+    old = onnx.load_from_string(data)
+    nodes = [n for n in old.graph.node if n.op_type == OP]
+    assert nodes and all(not n.attribute for n in nodes)
+    new = onnx.load_from_string(fill_optional_attributes(data))
+    for a, b in zip(old.graph.node, new.graph.node, strict=True):
+        if a.op_type == OP:
+            assert [(x.name, x.i) for x in b.attribute] == [("per_tap", 0)]
+            del b.attribute[:]
+        assert a == b
+    assert old.functions == new.functions and old.graph.initializer == new.graph.initializer
+    from rtdenoise.runtime import Denoiser
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+
+    den = Denoiser("demo:afn", fast_kernels="extensions")
+    assert den.bridge == "extensions"
+    frames = synthetic_frames(den.required_buffers, 2, 16, 16)
+    assert all(np.isfinite(den.process(f)).all() for f in frames)

@@ -159,3 +159,36 @@ def test_flip_augmentation_commutes_with_reprojection():
         dots = (nf * other["normal"]).sum(1)
         expected = np.flip((normal.numpy() * np.roll(normal.numpy(), 1, axis=-1)).sum(1), axes)
         np.testing.assert_allclose(dots, expected, atol=1e-6)
+
+
+def test_per_tap_keeps_the_foreground_taps_at_a_silhouette():
+    """SVGF's per-tap test (TemporalConfig.per_tap=1): half a pixel from a depth edge, the
+    bilinear scheme tests the interpolated depth (2 and 8 -> 5) and drops the history of a
+    foreground pixel; per tap keeps its foreground tap, renormalised to weight 1. Where every
+    tap agrees both give the bilinear history; gradients reach the history."""
+    normal, depth = _flat_geometry()
+    prev_depth = depth.clone()
+    prev_depth[..., W // 2 :] = 8.0  # the background, right half
+    depth = prev_depth.clone()  # the same silhouette this frame
+    history = torch.where(prev_depth > 4.0, 5.0, 1.0).expand(1, 3, H, W).clone()
+    ta_state = torch.cat((history, torch.full((1, 1, H, W), 4.0)), dim=1).requires_grad_(True)
+    geometry = torch.cat((normal, prev_depth), dim=1)
+    current = torch.zeros(1, 3, H, W)
+    motion = _const_motion(0.5, 0.0)
+    outs = {}
+    for per_tap in (0, 1):
+        config = TemporalConfig(per_tap=per_tap)
+        outs[per_tap] = temporal_accumulation(
+            current, motion, depth, normal, ta_state, geometry, torch.tensor(0.0), config
+        )
+    edge = W // 2 - 1  # foreground pixel whose right tap is background
+    assert float(outs[0][1][0, 0, 3, edge].detach()) == 1.0  # bilinear: history dropped
+    alpha = float(outs[1][1][0, 0, 3, edge].detach())
+    assert alpha == np.float32(0.2)  # per tap: history length 4 kept
+    torch.testing.assert_close(outs[1][0][0, :, 3, edge].detach(), torch.full((3,), 0.8))
+    inner = slice(0, edge - 1)
+    torch.testing.assert_close(
+        outs[1][0][..., inner].detach(), outs[0][0][..., inner].detach(), atol=1e-6, rtol=0
+    )
+    outs[1][0].sum().backward()
+    assert ta_state.grad is not None and float(ta_state.grad[:, :3].abs().sum()) > 0

@@ -31,8 +31,10 @@ BodyBuilder = Callable[[int], list[onnx.NodeProto]]
 
 
 def make_schema(spec: OpSpec) -> defs.OpSchema:
-    """OpSchema of `rtdenoise.<Name>`: float tensors everywhere, required INT attributes."""
+    """OpSchema of `rtdenoise.<Name>`: float tensors everywhere, INT attributes, required
+    except the spec's optional ones (which carry their value as the default)."""
     param = defs.OpSchema.FormalParameter
+    attr = defs.OpSchema.Attribute
     return defs.OpSchema(
         spec.name,
         DOMAIN,
@@ -42,7 +44,9 @@ def make_schema(spec: OpSpec) -> defs.OpSchema:
         outputs=[param(a.name, "T") for a in spec.outputs],
         type_constraints=[("T", ["tensor(float)"], "float32 tensors")],
         attributes=[
-            defs.OpSchema.Attribute(a, defs.OpSchema.AttrType.INT, a, required=True)
+            attr(a, helper.make_attribute(a, spec.optional_attrs[a]), a)
+            if a in spec.optional_attrs
+            else attr(a, defs.OpSchema.AttrType.INT, a, required=True)
             for a in spec.attrs
         ],
     )
@@ -83,7 +87,9 @@ class OnnxForm:
         return self.spec.name
 
     def build_function(self, opset: int) -> onnx.FunctionProto:
-        """Model-local FunctionProto `rtdenoise.<Name>` over the standard opset `opset`."""
+        """Model-local FunctionProto `rtdenoise.<Name>` over the standard opset `opset`; an
+        optional attribute carries its value as the default (a node may omit it)."""
+        optional = self.spec.optional_attrs
         return helper.make_function(
             DOMAIN,
             self.spec.name,
@@ -91,7 +97,8 @@ class OnnxForm:
             list(self.spec.output_names),
             self.body(opset),
             opset_imports=[helper.make_opsetid("", opset)],
-            attributes=list(self.spec.attrs),
+            attributes=[a for a in self.spec.attrs if a not in optional],
+            attribute_protos=[helper.make_attribute(a, v) for a, v in optional.items()],
             doc_string=self.spec.doc,
         )
 

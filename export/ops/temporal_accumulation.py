@@ -1,9 +1,14 @@
 """TemporalAccumulation as an ONNX function body; spec: rtdenoise.ops.temporal_accumulation.
 
-Body: Reproject's body on the concatenated state (its clamped source positions give the
-in-bounds test too), then the validity test, the selection and the blend of
-`models.temporal.temporal_step`, node for node in the torch form's order (names of this body
-start with `ta_`; Reproject's are its own).
+Body: an If on the attribute per_tap, each branch the whole step (outputs renamed per branch,
+the If gives the function's outputs), so a model runs only the reprojection it asked for:
+- per_tap = 0 (bilinear): Reproject's body on the concatenated state (its clamped source
+  positions give the in-bounds test too), then the validity test, the selection and the blend
+  of `models.temporal.temporal_step`, node for node in the torch form's order (names of this
+  part start with `ta_`; Reproject's are its own);
+- per_tap = 1: `models.temporal.per_tap_history` (names start with `tp_`): the four taps'
+  positions and bilinear weights, per tap one GatherElements of the (N, C + 5, H*W) state and
+  its inside / depth / normal tests, the renormalisation, then the same blend.
 """
 
 from __future__ import annotations
@@ -11,8 +16,10 @@ from __future__ import annotations
 import onnx
 from onnx import TensorProto, helper
 
-from .base import float_const, function_body
+from .base import attr_const, float_const, function_body, int_const
 from .reproject import reproject_body
+
+OUTPUTS = ("accumulated", "blend", "next_ta", "next_geometry")
 
 
 def _in_bounds() -> list[onnx.NodeProto]:
@@ -37,9 +44,28 @@ def _in_bounds() -> list[onnx.NodeProto]:
     return nodes
 
 
-@function_body("TemporalAccumulation")
-def temporal_accumulation_body(opset: int) -> list[onnx.NodeProto]:
-    """rtdenoise.TemporalAccumulation in standard ops."""
+def _blend() -> list[onnx.NodeProto]:
+    """models.temporal.accumulate: ta_valid, ta_history, ta_history_len -> the outputs."""
+    mk = helper.make_node
+    return [
+        mk("Greater", ["ta_valid", "ta_half"], ["ta_ok"]),
+        mk("Where", ["ta_ok", "ta_history_len", "f0"], ["ta_n_prev"]),
+        mk("Where", ["ta_ok", "ta_history", "f0"], ["ta_hist"]),
+        mk("Add", ["ta_n_prev", "f1"], ["ta_n_next"]),
+        mk("Div", ["f1", "ta_n_next"], ["ta_uniform"]),
+        mk("Max", ["ta_uniform", "min_alpha"], ["blend"]),
+        mk("Mul", ["blend", "current"], ["ta_new_part"]),
+        mk("Sub", ["f1", "blend"], ["ta_keep_weight"]),
+        mk("Mul", ["ta_keep_weight", "ta_hist"], ["ta_old_part"]),
+        mk("Add", ["ta_new_part", "ta_old_part"], ["accumulated"]),
+        mk("Min", ["ta_n_next", "max_history"], ["ta_new_len"]),
+        mk("Concat", ["accumulated", "ta_new_len"], ["next_ta"], axis=1),
+        mk("Concat", ["normal", "depth"], ["next_geometry"], axis=1),
+    ]
+
+
+def _bilinear_body(opset: int) -> list[onnx.NodeProto]:
+    """per_tap = 0: the whole state warped by Reproject, its geometry tested per pixel."""
     mk = helper.make_node
     warp = [mk("Concat", ["ta_state", "geometry_state"], ["previous"], axis=1)]
     warp += reproject_body.body(opset)  # previous, motion -> output (the warped state)
@@ -68,19 +94,163 @@ def temporal_accumulation_body(opset: int) -> list[onnx.NodeProto]:
         mk("Sub", ["f1", "reset"], ["ta_keep"]),
         mk("Mul", ["ta_valid_geometry", "ta_keep"], ["ta_valid"]),
     ]
-    blend = [  # models.temporal.accumulate
-        mk("Greater", ["ta_valid", "ta_half"], ["ta_ok"]),
-        mk("Where", ["ta_ok", "ta_history_len", "f0"], ["ta_n_prev"]),
-        mk("Where", ["ta_ok", "ta_history", "f0"], ["ta_hist"]),
-        mk("Add", ["ta_n_prev", "f1"], ["ta_n_next"]),
-        mk("Div", ["f1", "ta_n_next"], ["ta_uniform"]),
-        mk("Max", ["ta_uniform", "min_alpha"], ["blend"]),
-        mk("Mul", ["blend", "current"], ["ta_new_part"]),
-        mk("Sub", ["f1", "blend"], ["ta_keep_weight"]),
-        mk("Mul", ["ta_keep_weight", "ta_hist"], ["ta_old_part"]),
-        mk("Add", ["ta_new_part", "ta_old_part"], ["accumulated"]),
-        mk("Min", ["ta_n_next", "max_history"], ["ta_new_len"]),
-        mk("Concat", ["accumulated", "ta_new_len"], ["next_ta"], axis=1),
-        mk("Concat", ["normal", "depth"], ["next_geometry"], axis=1),
+    return warp + channels + _in_bounds() + validity + _blend()
+
+
+def _per_tap_tap(t: str, fx: str, fy: str, weight: str) -> list[onnx.NodeProto]:
+    """One tap at the integer-valued float position (fx, fy) (N, H, W): its values gathered
+    (position clamped into the image), its tests, its accepted weight tp_{t}_w and weighted
+    state tp_{t}_part (models.temporal.per_tap_history's loop body)."""
+    mk = helper.make_node
+    p = f"tp_{t}"
+    return [
+        mk("GreaterOrEqual", [fx, "f0"], [f"{p}_gx"]),
+        mk("LessOrEqual", [fx, "tp_x_max"], [f"{p}_lx"]),
+        mk("GreaterOrEqual", [fy, "f0"], [f"{p}_gy"]),
+        mk("LessOrEqual", [fy, "tp_y_max"], [f"{p}_ly"]),
+        mk("And", [f"{p}_gx", f"{p}_lx"], [f"{p}_in1"]),
+        mk("And", [f"{p}_in1", f"{p}_gy"], [f"{p}_in2"]),
+        mk("And", [f"{p}_in2", f"{p}_ly"], [f"{p}_in3"]),
+        mk("Unsqueeze", [f"{p}_in3", "one_i"], [f"{p}_inside"]),  # (N, 1, H, W)
+        mk("Max", [fx, "f0"], [f"{p}_cx0"]),
+        mk("Min", [f"{p}_cx0", "tp_x_max"], [f"{p}_cx"]),
+        mk("Max", [fy, "f0"], [f"{p}_cy0"]),
+        mk("Min", [f"{p}_cy0", "tp_y_max"], [f"{p}_cy"]),
+        mk("Cast", [f"{p}_cx"], [f"{p}_ix"], to=TensorProto.INT64),
+        mk("Cast", [f"{p}_cy"], [f"{p}_iy"], to=TensorProto.INT64),
+        mk("Mul", [f"{p}_iy", "w_i"], [f"{p}_row"]),
+        mk("Add", [f"{p}_row", f"{p}_ix"], [f"{p}_idx2"]),  # (N, H, W)
+        mk("Reshape", [f"{p}_idx2", "idx_shape"], [f"{p}_idx1"]),  # (N, 1, H*W)
+        mk("Expand", [f"{p}_idx1", "flat_dims"], [f"{p}_idx"]),  # (N, C + 5, H*W)
+        mk("GatherElements", ["flat", f"{p}_idx"], [f"{p}_flat"], axis=2),
+        mk("Reshape", [f"{p}_flat", "shape"], [f"{p}_g"]),  # (N, C + 5, H, W)
+        mk("Slice", [f"{p}_g", "zero_i", "ta_c1", "one_i"], [f"{p}_state"]),
+        mk("Slice", [f"{p}_g", "ta_c1", "ta_c4", "one_i"], [f"{p}_normal"]),
+        mk("Slice", [f"{p}_g", "ta_c4", "ta_c5", "one_i"], [f"{p}_depth"]),
+        mk("Sub", [f"{p}_depth", "depth"], [f"{p}_depth_diff"]),
+        mk("Abs", [f"{p}_depth_diff"], [f"{p}_depth_err"]),
+        mk("Less", [f"{p}_depth_err", "tp_depth_tol"], [f"{p}_depth_ok"]),
+        mk("Mul", [f"{p}_normal", "normal"], [f"{p}_normal_prod"]),
+        mk("ReduceSum", [f"{p}_normal_prod", "one_i"], [f"{p}_normal_dot"], keepdims=1),
+        mk("Greater", [f"{p}_normal_dot", "normal_threshold"], [f"{p}_normal_ok"]),
+        mk("And", [f"{p}_inside", f"{p}_depth_ok"], [f"{p}_ok2"]),
+        mk("And", [f"{p}_ok2", f"{p}_normal_ok"], [f"{p}_ok"]),
+        mk("Where", [f"{p}_ok", weight, "f0"], [f"{p}_w"]),
+        mk("Where", [f"{p}_ok", f"{p}_state", "f0"], [f"{p}_value"]),
+        mk("Mul", [f"{p}_w", f"{p}_value"], [f"{p}_part"]),
     ]
-    return warp + channels + _in_bounds() + validity + blend
+
+
+def _per_tap_body(opset: int) -> list[onnx.NodeProto]:
+    """per_tap = 1: models.temporal.per_tap_history, then the blend."""
+    mk = helper.make_node
+    base = [
+        int_const("zero_i", [0]),
+        int_const("one_i", [1]),
+        int_const("two_i", [2]),
+        int_const("three_i", [3]),
+        int_const("four_i", [4]),
+        int_const("minus1_i", [-1]),
+        float_const("f0", 0.0),
+        float_const("f1", 1.0),
+        float_const("ta_half", 0.5),
+        float_const("tp_cut", 0.01),
+        mk("Concat", ["ta_state", "geometry_state"], ["previous"], axis=1),
+        mk("Shape", ["previous"], ["shape"]),
+        mk("Slice", ["shape", "zero_i", "two_i"], ["nc"]),
+        mk("Slice", ["shape", "zero_i", "one_i"], ["n"]),
+        mk("Slice", ["shape", "two_i", "three_i"], ["h1"]),
+        mk("Slice", ["shape", "three_i", "four_i"], ["w1"]),
+        mk("Squeeze", ["h1", "zero_i"], ["h_i"]),
+        mk("Squeeze", ["w1", "zero_i"], ["w_i"]),
+        mk("Cast", ["h_i"], ["h_f"], to=TensorProto.FLOAT),
+        mk("Cast", ["w_i"], ["w_f"], to=TensorProto.FLOAT),
+        mk("Sub", ["w_f", "f1"], ["tp_x_max"]),
+        mk("Sub", ["h_f", "f1"], ["tp_y_max"]),
+        mk("Concat", ["nc", "minus1_i"], ["flat_shape"], axis=0),  # (N, C + 5, -1)
+        mk("Reshape", ["previous", "flat_shape"], ["flat"]),
+        mk("Shape", ["flat"], ["flat_dims"]),
+        mk("Concat", ["n", "one_i", "minus1_i"], ["idx_shape"], axis=0),  # (N, 1, -1)
+        mk("Shape", ["current"], ["ta_c"], start=1, end=2),  # [C]
+        mk("Add", ["ta_c", "one_i"], ["ta_c1"]),
+        mk("Add", ["ta_c", "four_i"], ["ta_c4"]),
+        mk("Add", ["ta_c4", "one_i"], ["ta_c5"]),
+        mk("Range", ["f0", "w_f", "f1"], ["xs"]),  # (W,)
+        mk("Range", ["f0", "h_f", "f1"], ["ys0"]),
+        mk("Unsqueeze", ["ys0", "one_i"], ["ys"]),  # (H, 1)
+        mk("Split", ["motion"], ["mx4", "my4"], axis=1, num_outputs=2)
+        if opset >= 18
+        else mk("Split", ["motion"], ["mx4", "my4"], axis=1),
+        mk("Squeeze", ["mx4", "one_i"], ["mx"]),  # (N, H, W)
+        mk("Squeeze", ["my4", "one_i"], ["my"]),
+        mk("Add", ["xs", "mx"], ["tp_px"]),
+        mk("Add", ["ys", "my"], ["tp_py"]),
+        mk("Floor", ["tp_px"], ["tp_x0"]),
+        mk("Floor", ["tp_py"], ["tp_y0"]),
+        mk("Add", ["tp_x0", "f1"], ["tp_x1"]),
+        mk("Add", ["tp_y0", "f1"], ["tp_y1"]),
+        mk("Sub", ["tp_px", "tp_x0"], ["tp_ax3"]),
+        mk("Sub", ["tp_py", "tp_y0"], ["tp_ay3"]),
+        mk("Unsqueeze", ["tp_ax3", "one_i"], ["tp_ax"]),  # (N, 1, H, W)
+        mk("Unsqueeze", ["tp_ay3", "one_i"], ["tp_ay"]),
+        mk("Sub", ["f1", "tp_ax"], ["tp_ex"]),
+        mk("Sub", ["f1", "tp_ay"], ["tp_ey"]),
+        mk("Mul", ["tp_ex", "tp_ey"], ["tp_k_nw"]),
+        mk("Mul", ["tp_ax", "tp_ey"], ["tp_k_ne"]),
+        mk("Mul", ["tp_ex", "tp_ay"], ["tp_k_sw"]),
+        mk("Mul", ["tp_ax", "tp_ay"], ["tp_k_se"]),
+        mk("Abs", ["depth"], ["tp_depth_abs"]),
+        mk("Mul", ["depth_tolerance", "tp_depth_abs"], ["tp_depth_tol"]),
+    ]
+    taps = [
+        *_per_tap_tap("nw", "tp_x0", "tp_y0", "tp_k_nw"),
+        *_per_tap_tap("ne", "tp_x1", "tp_y0", "tp_k_ne"),
+        *_per_tap_tap("sw", "tp_x0", "tp_y1", "tp_k_sw"),
+        *_per_tap_tap("se", "tp_x1", "tp_y1", "tp_k_se"),
+    ]
+    renormalise = [
+        mk("Add", ["tp_nw_part", "tp_ne_part"], ["tp_acc2"]),
+        mk("Add", ["tp_acc2", "tp_sw_part"], ["tp_acc3"]),
+        mk("Add", ["tp_acc3", "tp_se_part"], ["tp_acc"]),
+        mk("Add", ["tp_nw_w", "tp_ne_w"], ["tp_total2"]),
+        mk("Add", ["tp_total2", "tp_sw_w"], ["tp_total3"]),
+        mk("Add", ["tp_total3", "tp_se_w"], ["tp_total"]),
+        mk("GreaterOrEqual", ["tp_total", "tp_cut"], ["tp_accepted"]),
+        mk("Where", ["tp_accepted", "tp_total", "f1"], ["tp_denominator"]),
+        mk("Div", ["tp_acc", "tp_denominator"], ["tp_warped"]),
+        mk("Cast", ["tp_accepted"], ["tp_accepted_f"], to=TensorProto.FLOAT),
+        mk("Sub", ["f1", "reset"], ["ta_keep"]),
+        mk("Mul", ["tp_accepted_f", "ta_keep"], ["ta_valid"]),
+        mk("Greater", ["ta_valid", "ta_half"], ["tp_ok"]),
+        mk("Where", ["tp_ok", "tp_warped", "f0"], ["tp_selected"]),
+        mk("Slice", ["tp_selected", "zero_i", "ta_c", "one_i"], ["ta_history"]),
+        mk("Slice", ["tp_selected", "ta_c", "ta_c1", "one_i"], ["ta_history_len"]),
+    ]
+    return base + taps + renormalise + _blend()
+
+
+def _branch(name: str, nodes: list[onnx.NodeProto]) -> onnx.GraphProto:
+    """A subgraph of the If: `nodes` with the function's outputs renamed `<name>_<output>`."""
+    rename = {o: f"{name}_{o}" for o in OUTPUTS}
+    for node in nodes:
+        node.input[:] = [rename.get(i, i) for i in node.input]
+        node.output[:] = [rename.get(o, o) for o in node.output]
+    outputs = [helper.make_tensor_value_info(rename[o], TensorProto.FLOAT, None) for o in OUTPUTS]
+    return helper.make_graph(nodes, f"temporal_accumulation_{name}", [], outputs)
+
+
+@function_body("TemporalAccumulation")
+def temporal_accumulation_body(opset: int) -> list[onnx.NodeProto]:
+    """rtdenoise.TemporalAccumulation in standard ops: If(per_tap) per tap, else bilinear."""
+    mk = helper.make_node
+    return [
+        attr_const("ta_per_tap", "per_tap"),
+        mk("Cast", ["ta_per_tap"], ["ta_per_tap_b"], to=TensorProto.BOOL),
+        mk(
+            "If",
+            ["ta_per_tap_b"],
+            list(OUTPUTS),
+            then_branch=_branch("per_tap", _per_tap_body(opset)),
+            else_branch=_branch("bilinear", _bilinear_body(opset)),
+        ),
+    ]

@@ -120,6 +120,7 @@ class AFNConfig(AccumulatingConfig):
         return super().from_dict(data)
 
     def validate(self) -> None:
+        super().validate()  # AccumulatingConfig: the reprojection
         if len(self.widths) < 2 or any(w < 1 for w in self.widths):
             raise self.fail(f"widths must list >= 2 positive sizes, got {self.widths}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:

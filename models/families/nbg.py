@@ -101,6 +101,7 @@ class NBGConfig(AccumulatingConfig):
     outlier_normal: float = 0.1
 
     def validate(self) -> None:
+        super().validate()  # AccumulatingConfig: the reprojection
         if self.hidden < 1:
             raise self.fail(f"hidden must be >= 1, got {self.hidden}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:

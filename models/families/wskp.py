@@ -99,6 +99,7 @@ class WSKPConfig(AccumulatingConfig):
     smape_eps: float = 1e-3  # Fan21 official: 1e-2
 
     def validate(self) -> None:
+        super().validate()  # AccumulatingConfig: the reprojection
         if self.width < 1:
             raise self.fail(f"width must be >= 1, got {self.width}")
         if self.layers < 2:

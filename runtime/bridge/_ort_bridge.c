@@ -116,6 +116,8 @@ typedef struct Op {
     int id, n_in, n_out, n_attrs;
     char name[NAME_LEN];
     char attrs[MAX_ATTRS][NAME_LEN];
+    int has_default[MAX_ATTRS]; /* an optional attribute: a node may omit it */
+    int64_t defaults[MAX_ATTRS];
 } Op;
 
 typedef struct {
@@ -154,7 +156,10 @@ static void *create_kernel(Op *op, const void *api_, const void *info) {
             info, op->attrs[a], &kernel->attrs[a]);
         if (status) { /* reported at compute: a missing attribute fails every call */
             FN(API_RELEASE_STATUS, void (*)(OrtStatusT *))(status);
-            kernel->attrs_ok = 0;
+            if (op->has_default[a])
+                kernel->attrs[a] = op->defaults[a]; /* newer than the node: its default */
+            else
+                kernel->attrs_ok = 0;
         }
     }
     return kernel;
@@ -280,7 +285,8 @@ static void compute(void *kernel_, void *context) {
 /* ---- what Python calls (ctypes) ---- */
 
 /* Declare op `name` (id = its index) with n_in float inputs, n_out float outputs and the int
- * attributes named in `attrs` (comma-separated). Returns the id, or -1 if it does not fit. */
+ * attributes named in `attrs` (comma-separated; `name=value` for an optional one, which a node
+ * may omit). Returns the id, or -1 if it does not fit. */
 EXPORT int rtd_declare_op(const char *name, int n_in, int n_out, const char *attrs) {
     if (n_ops >= MAX_OPS || n_in < 1 || n_in > MAX_IO || n_out < 1 || n_out > MAX_IO ||
         strlen(name) >= NAME_LEN)
@@ -318,9 +324,15 @@ EXPORT int rtd_declare_op(const char *name, int n_in, int n_out, const char *att
     while (p && *p) {
         const char *end = strchr(p, ',');
         size_t len = end ? (size_t)(end - p) : strlen(p);
-        if (op->n_attrs >= MAX_ATTRS || len == 0 || len >= NAME_LEN) return -1;
-        memcpy(op->attrs[op->n_attrs], p, len);
-        op->attrs[op->n_attrs][len] = '\0';
+        const char *eq = memchr(p, '=', len);
+        size_t name_len = eq ? (size_t)(eq - p) : len;
+        if (op->n_attrs >= MAX_ATTRS || name_len == 0 || name_len >= NAME_LEN) return -1;
+        memcpy(op->attrs[op->n_attrs], p, name_len);
+        op->attrs[op->n_attrs][name_len] = '\0';
+        if (eq) {
+            op->has_default[op->n_attrs] = 1;
+            op->defaults[op->n_attrs] = strtoll(eq + 1, NULL, 10);
+        }
         op->n_attrs++;
         p = end ? end + 1 : NULL;
     }

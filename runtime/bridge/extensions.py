@@ -15,7 +15,12 @@ Pitfalls handled here (research-notes "Custom ops"):
   library-internal function, so it is installed only for the versions checked to speak its
   protocol (`HOOK_VERSIONS`: their `_ocos.py` are identical, and the op, demo-model and
   torch-free runtime tests passed on each);
-- every declared attribute must be present on the node (the exporter writes them all);
+- every declared attribute must be present on the node (the exporter writes them all; the
+  library has no attribute defaults): a model exported before an optional attribute existed
+  (`OpSpec.optional_attrs`: TemporalAccumulation's per_tap, absent from the shipped demos)
+  fails at session creation ("Unable to find attribute"), so `Denoiser` loads it through
+  `rtdenoise.runtime.static_check.fill_optional_attributes` on this bridge, and a host that
+  drives its own session must do the same;
 - inputs and outputs are copied on every call; at 720p KernelApply's 49-channel kernel is
   180 MB, and glibc serves such blocks with fresh mmaps that page-fault on every call.
   `tune_allocator()` (opt-in, process-wide) keeps them in the heap instead;

@@ -62,6 +62,13 @@ def _view(address: int | None, shape: tuple[int, ...]) -> np.ndarray:
     return np.frombuffer((ctypes.c_float * count).from_address(address), np.float32).reshape(shape)
 
 
+def _declared_attrs(spec) -> str:
+    """The attributes as rtd_declare_op reads them: `name`, or `name=value` for an optional one
+    (a node that omits it gets the value)."""
+    opt = spec.optional_attrs
+    return ",".join(f"{a}={opt[a]}" if a in opt else a for a in spec.attrs)
+
+
 class _Bridge:
     """The loaded library, its declared ops (index = id) and the callbacks it holds."""
 
@@ -77,7 +84,7 @@ class _Bridge:
                 spec = kernel.spec
                 op_id = self.lib.rtd_declare_op(
                     spec.name.encode(), len(spec.inputs), len(spec.outputs),
-                    ",".join(spec.attrs).encode(),
+                    _declared_attrs(spec).encode(),
                 )  # fmt: skip
                 if op_id != len(self.kernels):
                     raise BridgeError(f"the native bridge cannot declare op {spec.name}")

@@ -6,6 +6,11 @@ One output row per parallel iteration: Reproject's taps and weights for the row
 channel row at a time (branch-free row loops with unsigned indices, which LLVM vectorises:
 0.73x the time of one per-pixel loop over everything at 720p, the same bits).
 
+per_tap = 1 (`_temporal_accumulation_per_tap_nb`, models.temporal.per_tap_history): one
+pixel at a time, its four taps tested and their weights and states summed in the torch form's
+tap order (nw, ne, sw, se; a rejected tap adds nothing, as its selected-away 0 does there),
+then the renormalisation, n, alpha and the blend.
+
 The float32 arithmetic is the torch form's, step by step and without fastmath, so the forms
 agree to the bit: a history-validity decision that flipped between forms would change a
 pixel's whole history.
@@ -88,6 +93,70 @@ def _temporal_accumulation_nb(
         next_geometry[n, 3, y, :] = d_row
 
 
+@njit(parallel=True, cache=True)  # no fastmath (see the module docstring)
+def _temporal_accumulation_per_tap_nb(
+    current, motion, depth, normal, ta_state, geometry_state, keep, tolerance, threshold,
+    min_alpha, max_history, accumulated, blend, next_ta, next_geometry,
+):  # fmt: skip
+    n_img, n_ch, h, w = current.shape
+    ta_planes = ta_state.reshape(n_img, n_ch + 1, h * w)
+    geo_planes = geometry_state.reshape(n_img, 4, h * w)
+    zero, one, half, cut = np.float32(0.0), np.float32(1.0), np.float32(0.5), np.float32(0.01)
+    x_max, y_max = np.float32(w - 1), np.float32(h - 1)
+    for row in prange(n_img * h):
+        n = row // h
+        y = row - n * h
+        y_f = np.float32(y)
+        acc = np.empty(n_ch + 1, np.float32)
+        for x in range(w):
+            px = np.float32(x) + motion[n, 0, y, x]
+            py = y_f + motion[n, 1, y, x]
+            x0 = np.float32(np.floor(px))
+            y0 = np.float32(np.floor(py))
+            ax = px - x0
+            ay = py - y0
+            ex = one - ax
+            ey = one - ay
+            d = depth[n, 0, y, x]
+            tol = tolerance * abs(d)
+            nx, ny, nz = normal[n, 0, y, x], normal[n, 1, y, x], normal[n, 2, y, x]
+            acc[:] = zero
+            total = zero
+            for t in range(4):  # nw, ne, sw, se
+                right, down = t & 1, t >> 1
+                fx = x0 + one if right else x0
+                fy = y0 + one if down else y0
+                weight = (ax if right else ex) * (ay if down else ey)
+                if not ((fx >= zero) & (fx <= x_max) & (fy >= zero) & (fy <= y_max)):
+                    continue
+                i = int(fy) * w + int(fx)
+                if not (abs(geo_planes[n, 3, i] - d) < tol):
+                    continue
+                dot = geo_planes[n, 0, i] * nx
+                dot += geo_planes[n, 1, i] * ny
+                dot += geo_planes[n, 2, i] * nz
+                if not (dot > threshold):
+                    continue
+                for c in range(n_ch + 1):
+                    acc[c] = acc[c] + weight * ta_planes[n, c, i]
+                total = total + weight
+            valid = one if total >= cut else zero
+            kept = valid * keep > half
+            n_prev = acc[n_ch] / total if kept else zero
+            n_next = n_prev + one
+            a = max(one / n_next, min_alpha)
+            blend[n, 0, y, x] = a
+            next_ta[n, n_ch, y, x] = min(n_next, max_history)
+            for c in range(n_ch):
+                kept_c = acc[c] / total if kept else zero
+                value = a * current[n, c, y, x] + (one - a) * kept_c
+                accumulated[n, c, y, x] = value
+                next_ta[n, c, y, x] = value
+        for c in range(3):
+            next_geometry[n, c, y, :] = normal[n, c, y, :]
+        next_geometry[n, 3, y, :] = depth[n, 0, y, :]
+
+
 @fast_kernel("TemporalAccumulation")
 def temporal_accumulation(
     current: np.ndarray,
@@ -105,11 +174,14 @@ def temporal_accumulation(
     blend: np.ndarray,
     next_ta: np.ndarray,
     next_geometry: np.ndarray,
+    per_tap: int = 0,
 ) -> None:
     """current (N, C, H, W), motion, depth, normal, ta_state (N, C + 1, H, W), geometry_state
-    (N, 4, H, W) and five scalars -> accumulated, blend, next_ta, next_geometry."""
+    (N, 4, H, W) and five scalars -> accumulated, blend, next_ta, next_geometry; per_tap picks
+    the reprojection (0 bilinear, 1 per tap)."""
     f32 = np.float32
-    _temporal_accumulation_nb(
+    kernel = _temporal_accumulation_per_tap_nb if per_tap else _temporal_accumulation_nb
+    kernel(
         current, motion, depth, normal, ta_state, geometry_state,
         f32(1.0) - f32(reset), f32(depth_tolerance), f32(normal_threshold), f32(min_alpha),
         f32(max_history), accumulated, blend, next_ta, next_geometry,

@@ -236,9 +236,12 @@ void reproject_run(const Tensor *in, Tensor *out, const int64_t *, int threads) 
 
 /* ------------------------------------------------------------------ TemporalAccumulation */
 
-std::string temporal_accumulation_shapes(const Tensor *in, const int64_t *, Shape *out) {
+std::string temporal_accumulation_shapes(const Tensor *in, const int64_t *attrs, Shape *out) {
     static const char *names[] = {"current", "motion", "depth", "normal", "ta_state",
                                   "geometry_state"};
+    if (attrs[0] != 0 && attrs[0] != 1)
+        return "TemporalAccumulation: per_tap is " + std::to_string(attrs[0]) +
+               "; expected 0 or 1";
     std::string e = same_nhw("TemporalAccumulation", in, names, 6);
     if (!e.empty()) return e;
     const int64_t n = in[0].dims[0], c = in[0].dims[1], h = in[0].dims[2], w = in[0].dims[3];
@@ -330,13 +333,83 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
     }
 }
 
-void temporal_accumulation_run(const Tensor *in, Tensor *out, const int64_t *, int threads) {
+/* per_tap = 1 (kernels/temporal_accumulation.py _temporal_accumulation_per_tap_nb): one pixel
+ * at a time, its four taps (nw, ne, sw, se) tested and their weights and states summed in the
+ * torch form's order, a rejected tap adding nothing; then the renormalisation and the blend. */
+RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, int64_t begin, int64_t end) {
+    const int64_t n_ch = a.n_ch, h = a.h, w = a.w, hw = h * w;
+    std::vector<float> acc(static_cast<size_t>(n_ch + 1));
+    const float zero = 0.0f, one = 1.0f, half = 0.5f, cut = 0.01f;
+    const float x_max = static_cast<float>(w - 1), y_max = static_cast<float>(h - 1);
+    for (int64_t row = begin; row < end; ++row) {
+        const int64_t n = row / h, y = row - n * h;
+        const float *mx = a.motion + (n * 2 * h + y) * w;
+        const float *my = mx + hw;
+        const float *d_row = a.depth + (n * h + y) * w;
+        const float *nx = a.normal + (n * 3 * h + y) * w;
+        const float *ny = nx + hw;
+        const float *nz = ny + hw;
+        const float *ta = a.ta_state + n * (n_ch + 1) * hw;
+        const float *geo = a.geometry + n * 4 * hw;
+        float *alpha = a.blend + (n * h + y) * w;
+        float *new_len = a.next_ta + ((n * (n_ch + 1) + n_ch) * h + y) * w;
+        const float y_f = static_cast<float>(y);
+        for (int64_t x = 0; x < w; ++x) {
+            const float px = static_cast<float>(x) + mx[x];
+            const float py = y_f + my[x];
+            const float x0 = std::floor(px), y0 = std::floor(py);
+            const float ax = px - x0, ay = py - y0;
+            const float ex = one - ax, ey = one - ay;
+            const float d = d_row[x];
+            const float tol = a.tolerance * std::fabs(d);
+            std::fill(acc.begin(), acc.end(), zero);
+            float total = zero;
+            for (int t = 0; t < 4; ++t) {
+                const bool right = t & 1, down = t >> 1;
+                const float fx = right ? x0 + one : x0;
+                const float fy = down ? y0 + one : y0;
+                const float weight = (right ? ax : ex) * (down ? ay : ey);
+                if (!((fx >= zero) & (fx <= x_max) & (fy >= zero) & (fy <= y_max))) continue;
+                const int64_t i = static_cast<int64_t>(fy) * w + static_cast<int64_t>(fx);
+                if (!(std::fabs(geo[3 * hw + i] - d) < tol)) continue;
+                float dot = geo[i] * nx[x];
+                dot += geo[hw + i] * ny[x];
+                dot += geo[2 * hw + i] * nz[x];
+                if (!(dot > a.threshold)) continue;
+                for (int64_t c = 0; c < n_ch + 1; ++c) acc[c] = acc[c] + weight * ta[c * hw + i];
+                total = total + weight;
+            }
+            const float valid = total >= cut ? one : zero;
+            const bool kept = valid * a.keep > half;
+            const float n_next = (kept ? acc[n_ch] / total : zero) + one;
+            const float al = max_like_numba(one / n_next, a.min_alpha);
+            alpha[x] = al;
+            new_len[x] = min_like_numba(n_next, a.max_history);
+            for (int64_t c = 0; c < n_ch; ++c) {
+                const float hist = kept ? acc[c] / total : zero;
+                const float value = al * a.current[((n * n_ch + c) * h + y) * w + x] + (one - al) * hist;
+                a.accumulated[((n * n_ch + c) * h + y) * w + x] = value;
+                a.next_ta[((n * (n_ch + 1) + c) * h + y) * w + x] = value;
+            }
+        }
+        for (int64_t c = 0; c < 3; ++c)
+            std::copy(nx + c * hw, nx + c * hw + w, a.next_geometry + ((n * 4 + c) * h + y) * w);
+        std::copy(d_row, d_row + w, a.next_geometry + ((n * 4 + 3) * h + y) * w);
+    }
+}
+
+void temporal_accumulation_run(const Tensor *in, Tensor *out, const int64_t *attrs, int threads) {
     TaArgs a{in[0].data, in[1].data, in[2].data, in[3].data, in[4].data, in[5].data,
              1.0f - in[6].data[0], in[7].data[0], in[8].data[0], in[9].data[0], in[10].data[0],
              out[0].data, out[1].data, out[2].data, out[3].data,
              in[0].dims[1], in[0].dims[2], in[0].dims[3]};
-    parallel_for(in[0].dims[0] * a.h, threads, 4 * (in[4].size() + in[5].size()) + 16 * in[2].size(),
-                 [&](int64_t b, int64_t e) { temporal_accumulation_rows(a, b, e); });
+    const int64_t work = 4 * (in[4].size() + in[5].size()) + 16 * in[2].size();
+    if (attrs[0])  // per_tap
+        parallel_for(in[0].dims[0] * a.h, threads, work,
+                     [&](int64_t b, int64_t e) { temporal_accumulation_per_tap_rows(a, b, e); });
+    else
+        parallel_for(in[0].dims[0] * a.h, threads, work,
+                     [&](int64_t b, int64_t e) { temporal_accumulation_rows(a, b, e); });
 }
 
 /* ------------------------------------------------------------------ the table */
@@ -352,6 +425,8 @@ const char *const WSF_ATTRS[] = {"size_min", "size_step", "count"};
 const char *const WSF_IN[] = {"image", "weights"};
 const char *const BG_ATTRS[] = {"cell_size", "grid_depth"};
 const char *const BG_IN[] = {"image", "guide"};
+const char *const TA_ATTRS[] = {"per_tap"};
+const int64_t TA_OPTIONAL[] = {0};  // per_tap: nodes exported before it are bilinear
 const char *const TA_IN[] = {"current", "motion", "depth", "normal", "ta_state",
                              "geometry_state", "reset", "depth_tolerance", "normal_threshold",
                              "min_alpha", "max_history"};
@@ -363,8 +438,8 @@ const OpDef OPS[] = {
     {"KernelFusion", 2, 1, R4, KF_IN, nullptr, 0, kernel_fusion_shapes, kernel_fusion_run},
     {"AdaptiveFusion", 3, 1, R4, AF_IN, nullptr, 0, adaptive_fusion_shapes, adaptive_fusion_run},
     {"Reproject", 2, 1, R4, RP_IN, nullptr, 0, reproject_shapes, reproject_run},
-    {"TemporalAccumulation", 11, 4, TA_RANKS, TA_IN, nullptr, 0, temporal_accumulation_shapes,
-     temporal_accumulation_run},
+    {"TemporalAccumulation", 11, 4, TA_RANKS, TA_IN, TA_ATTRS, 1, temporal_accumulation_shapes,
+     temporal_accumulation_run, 1, TA_OPTIONAL},
     {"WeightSharingFilter", 2, 1, R4, WSF_IN, WSF_ATTRS, 3, weight_sharing_filter_shapes,
      weight_sharing_filter_run},
     {"BilateralGrid", 2, 1, R4, BG_IN, BG_ATTRS, 2, bilateral_grid_shapes, bilateral_grid_run},

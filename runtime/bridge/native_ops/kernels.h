@@ -47,6 +47,11 @@ struct OpDef {
     int n_attrs;
     ShapeFn shapes;
     RunFn run;
+    /* The last n_optional attributes may be omitted on a node (added after models were
+     * shipped without them: the spec's optional_attrs); an omitted one takes
+     * optional_defaults[i - (n_attrs - n_optional)]. */
+    int n_optional = 0;
+    const int64_t *optional_defaults = nullptr;
 };
 
 const OpDef *op_table(int *count);

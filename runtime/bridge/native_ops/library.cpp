@@ -91,7 +91,11 @@ Status *create_kernel(const ort::CustomOp *op, const void *, const void *info, v
     for (int a = 0; a < def->n_attrs; ++a) {
         Status *status = fn<Status *(*)(const void *, const char *, int64_t *)>(
             ort::KERNEL_INFO_GET_ATTRIBUTE_INT64)(info, def->attrs[a], &kernel->attrs[a]);
-        if (status) {
+        const int first_optional = def->n_attrs - def->n_optional;
+        if (status && a >= first_optional) {  // an attribute newer than the node: its default
+            take_message(status);
+            kernel->attrs[a] = def->optional_defaults[a - first_optional];
+        } else if (status) {
             std::string why = take_message(status);
             delete kernel;
             return op_error(def, std::string("the node has no int attribute '") + def->attrs[a] +
