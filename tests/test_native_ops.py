@@ -1,9 +1,10 @@
 """The C++ custom-op library rtdenoise_ops (runtime/bridge/native_ops/, `native-cpp`): built by
-the install, chosen by default for a model whose every custom op it holds (afn, wskp; nbg on
-request), forced off by RTDENOISE_NATIVE_OPS=0 or an explicit bridge, the same numbers as the
-numba kernels over a demo's frames with state, errors as ONNX Runtime statuses naming the op
-and the cause, no Python inside. (Each op against its other forms: test_ops_three_forms.py,
-test_op_specs.py.) Skipped, with the reason, only where the library was not built."""
+the install, chosen by default for a model whose every custom op it holds (afn, wskp,
+crossreg; nbg and affinity on request), forced off by RTDENOISE_NATIVE_OPS=0 or an explicit
+bridge, the same numbers as the numba kernels over a demo's frames with state, errors as ONNX
+Runtime statuses naming the op and the cause, no Python inside. (Each op against its other
+forms: test_ops_three_forms.py, test_op_specs.py.) Skipped, with the reason, only where the
+library was not built."""
 
 from __future__ import annotations
 
@@ -56,11 +57,11 @@ def test_chosen_for_afn_and_only_where_it_holds_every_op(monkeypatch):
     assert Denoiser("demo:wskp").bridge == "native-cpp"
     assert Denoiser("demo:nbg").bridge == "native"  # BilateralGrid: held, not yet by default
     assert Denoiser("demo:nbg", fast_kernels="native-cpp").bridge == "native-cpp"
-    for family in ("affinity", "crossreg"):  # every op held; the default where none is slower
-        ops = demo_ops(family)
-        assert ops and ops <= native_cpp.covered_ops(), family
-        default = "native" if native_cpp.NOT_BY_DEFAULT & ops else "native-cpp"
-        assert Denoiser(f"demo:{family}").bridge == default, family
+    for family in ("affinity", "crossreg"):  # every op of every demo is held
+        assert demo_ops(family) <= native_cpp.covered_ops(), family
+    assert Denoiser("demo:crossreg").bridge == "native-cpp"
+    assert Denoiser("demo:affinity").bridge == "native"  # held, not yet by default (slower)
+    assert Denoiser("demo:affinity", fast_kernels="native-cpp").bridge == "native-cpp"
     assert Denoiser("demo:afn", fast_kernels="native").bridge == "native"  # numba, asked for
     held = native_cpp.covered_ops() - {"AffinityFilter", "TemporalAffinityFilter"}
     monkeypatch.setattr(native_cpp, "covered_ops", lambda: held)  # a library without them

@@ -88,8 +88,8 @@ RTD_INLINE void exp_row(float *RESTRICT dst, const float *RESTRICT arg, int64_t 
 /* The squared distances of tap `off` (colour A, colour B, albedo, normal) and the exponents
  * of m^A, m^B (eq. (9)) over the row (`_distances`). */
 RTD_INLINE void distances(const float *RESTRICT pad, int64_t wp, const float *const *cen,
-                      const float *RESTRICT band, int64_t hw, int64_t off, float dist_p,
-                      float *RESTRICT d, float *RESTRICT arg_a, float *RESTRICT arg_b, int64_t w) {
+                          const float *RESTRICT band, int64_t hw, int64_t off, float dist_p,
+                          float *RESTRICT d, float *RESTRICT arg_a, float *RESTRICT arg_b, int64_t w) {
     const float *RESTRICT p0 = pad + off, *RESTRICT p1 = p0 + wp, *RESTRICT p2 = p1 + wp,
                           *RESTRICT p3 = p2 + wp, *RESTRICT p4 = p3 + wp, *RESTRICT p5 = p4 + wp,
                           *RESTRICT p6 = p5 + wp, *RESTRICT p7 = p6 + wp, *RESTRICT p8 = p7 + wp,
@@ -123,8 +123,8 @@ RTD_INLINE void distances(const float *RESTRICT pad, int64_t wp, const float *co
 /* Buffer `f`'s (pilot A or B, 3 padded rows) terms of one tap into its 20 row sums `acc`
  * (`_accumulate`). */
 RTD_INLINE void accumulate(const float *RESTRICT f, int64_t wp, const float *RESTRICT m,
-                       const float *RESTRICT dist_f, const float *RESTRICT dist_r,
-                       const float *RESTRICT dist_n, float dist_p, float *RESTRICT acc, int64_t w) {
+                           const float *RESTRICT dist_f, const float *RESTRICT dist_r,
+                           const float *RESTRICT dist_n, float dist_p, float *RESTRICT acc, int64_t w) {
     const float *RESTRICT fa = f, *RESTRICT fb = f + wp, *RESTRICT fc = f + 2 * wp;
     for (int64_t x = 0; x < w; ++x) {
         float wt = m[x];
@@ -263,7 +263,7 @@ RTD_CLONES void cr_stack(const CrArgs &a, int64_t begin, int64_t end) {
 /* kernels/cross_regression.py _centre_sums: the 61 distinct sums of X^T W X and X^T W y over
  * the mirrored window of centre (cy, cx), in local accumulators. */
 RTD_INLINE void centre_sums(const double *q, int64_t h, int64_t w, int64_t cy, int64_t cx, int64_t r,
-                        double *RESTRICT acc) {
+                            double *RESTRICT acc) {
     const int64_t hw = h * w, at = cy * w + cx;
     const double c0 = q[at], c1 = q[hw + at], c2 = q[2 * hw + at];
     const double ca[3] = {q[3 * hw + at], q[4 * hw + at], q[5 * hw + at]};
