@@ -38,7 +38,10 @@ BRIDGE = Extension(
 
 NATIVE_OPS = Extension(
     "rtdenoise.runtime.bridge.rtdenoise_ops",
-    sources=[f"runtime/bridge/native_ops/{f}.cpp" for f in ("library", "kernels", "filters")],
+    sources=[
+        f"runtime/bridge/native_ops/{f}.cpp"
+        for f in ("library", "kernels", "filters", "affinity", "crossreg")
+    ],
     depends=[f"runtime/bridge/native_ops/{f}.h" for f in ("kernels", "kernels_common", "ort_abi")],
     language="c++",
     optional=True,

@@ -1,9 +1,10 @@
 """The C++ custom-op library rtdenoise_ops (runtime/bridge/native_ops/, `native-cpp`): built by
-the install, chosen by default for a model whose every custom op it holds (afn, wskp; nbg on
-request), forced off by RTDENOISE_NATIVE_OPS=0 or an explicit bridge, the same numbers as the
-numba kernels over a demo's frames with state, errors as ONNX Runtime statuses naming the op
-and the cause, no Python inside. (Each op against its other forms: test_ops_three_forms.py,
-test_op_specs.py.) Skipped, with the reason, only where the library was not built."""
+the install, chosen by default for a model whose every custom op it holds (afn, wskp,
+crossreg; nbg and affinity on request), forced off by RTDENOISE_NATIVE_OPS=0 or an explicit
+bridge, the same numbers as the numba kernels over a demo's frames with state, errors as ONNX
+Runtime statuses naming the op and the cause, no Python inside. (Each op against its other
+forms: test_ops_three_forms.py, test_op_specs.py.) Skipped, with the reason, only where the
+library was not built."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import subprocess
 import sys
 
 import numpy as np
+import onnx
 import onnxruntime as ort
 import pytest
 from onnx import helper
@@ -21,7 +23,7 @@ from rtdenoise.runtime import Denoiser
 from rtdenoise.runtime import bridge as fast_bridge
 from rtdenoise.runtime.bridge import native_cpp
 from rtdenoise.runtime.errors import InputError
-from rtdenoise.shipped import sample_sequences
+from rtdenoise.shipped import demo_model, sample_sequences
 
 AFN_OPS = {"TemporalAccumulation", "SoftmaxKernelApply", "AdaptiveFusion"}
 
@@ -42,6 +44,12 @@ def cpp_session(model) -> ort.InferenceSession:
     return ort.InferenceSession(model.SerializeToString(), so, providers=["CPUExecutionProvider"])
 
 
+def demo_ops(family: str) -> set[str]:
+    """The rtdenoise op types of a demo's graph."""
+    model = onnx.load(demo_model(family, ".onnx"))
+    return {n.op_type for n in model.graph.node if n.domain == "rtdenoise"}
+
+
 def test_chosen_for_afn_and_only_where_it_holds_every_op(monkeypatch):
     assert AFN_OPS <= native_cpp.covered_ops()
     den = Denoiser("demo:afn")
@@ -49,10 +57,18 @@ def test_chosen_for_afn_and_only_where_it_holds_every_op(monkeypatch):
     assert Denoiser("demo:wskp").bridge == "native-cpp"
     assert Denoiser("demo:nbg").bridge == "native"  # BilateralGrid: held, not yet by default
     assert Denoiser("demo:nbg", fast_kernels="native-cpp").bridge == "native-cpp"
-    assert Denoiser("demo:affinity").bridge == "native"  # AffinityFilter is not held yet
+    for family in ("affinity", "crossreg"):  # every op of every demo is held
+        assert demo_ops(family) <= native_cpp.covered_ops(), family
+    assert Denoiser("demo:crossreg").bridge == "native-cpp"
+    assert Denoiser("demo:affinity").bridge == "native"  # held, not yet by default (slower)
+    assert Denoiser("demo:affinity", fast_kernels="native-cpp").bridge == "native-cpp"
     assert Denoiser("demo:afn", fast_kernels="native").bridge == "native"  # numba, asked for
+    held = native_cpp.covered_ops() - {"AffinityFilter", "TemporalAffinityFilter"}
+    monkeypatch.setattr(native_cpp, "covered_ops", lambda: held)  # a library without them
+    assert Denoiser("demo:affinity").bridge == "native"
     with pytest.raises(InputError, match="lacks AffinityFilter, TemporalAffinityFilter"):
         Denoiser("demo:affinity", fast_kernels="native-cpp")
+    monkeypatch.undo()
     monkeypatch.setenv(native_cpp.ENV_SWITCH, "0")
     assert Denoiser("demo:afn").bridge == "native"
     assert fast_bridge.choose_bridge(AFN_OPS) == "native"
@@ -83,6 +99,41 @@ def test_demo_native_cpp_matches_numba_over_eight_frames_with_state(family):
     for spec in cpp.state_specs:  # the history both carry forward
         a, b = cpp.state_value(spec.name), numba.state_value(spec.name)
         assert float(np.abs(a - b).max()) <= 1e-5 * max(1.0, float(np.abs(b).max())), spec.name
+
+
+@pytest.mark.parametrize("family", ["affinity", "crossreg"])
+def test_demo_affinity_and_crossreg_native_cpp_match_numba_with_state(family):
+    """demo:affinity (Isik21) and demo:crossreg (Choi24, learning online) on six 64x64 frames
+    of the committed sequence, state fed back, a reset at frame 4: the C++ path and the numba
+    path agree within 1e-5 on every frame and in every state (crossreg's weights and Adam
+    moments included)."""
+    from rtdenoise.runtime.sequences.frames import find_frames, read_frame
+    from rtdenoise.runtime.sequences.samples import sample_features_of, samples_from_buffers
+
+    cpp = Denoiser(f"demo:{family}", fast_kernels="native-cpp")
+    numba = Denoiser(f"demo:{family}", fast_kernels="native")
+    assert cpp.bridge == "native-cpp" and numba.bridge == "native"
+    if family == "crossreg":
+        assert cpp.online is not None  # it learns while it runs (the default)
+    paths = find_frames(sample_sequences()[0])[:6]
+    frames = [dict(read_frame(p).buffers) for p in paths]
+    if "samples" in cpp.required_buffers:  # affinity's per-sample input, from the buffers
+        for f in frames:
+            f["samples"] = samples_from_buffers(f, sample_features_of(cpp.config))
+    worst = 0.0
+    for t, frame in enumerate(frames):
+        if t == 4:
+            cpp.reset()
+            numba.reset()
+        a, b = cpp.process(frame), numba.process(frame)
+        assert a.shape == (3, 64, 64)
+        worst = max(worst, float(np.abs(a - b).max() / max(1.0, float(np.abs(b).max()))))
+    assert worst <= 1e-5, worst
+    for spec in cpp.state_specs:
+        a, b = cpp.state_value(spec.name), numba.state_value(spec.name)
+        assert float(np.abs(a - b).max()) <= 1e-5 * max(1.0, float(np.abs(b).max())), spec.name
+    if family == "crossreg":
+        assert float(cpp.state_value("adam_t").ravel()[0]) > 0  # it did learn
 
 
 def test_threads_give_the_same_bits_and_are_restored():
@@ -157,6 +208,48 @@ def test_kernel_fusion_non_finite_logits_give_nan_like_numba():
     logits[0, 2, 3, 4] = 0.0
     out = sess.run(None, {"images": images, "logits": logits})[0]
     assert np.isnan(out).all() and np.isnan(KERNELS["KernelFusion"](images, logits)).all()
+
+
+@pytest.mark.parametrize("op", ["AffinityFilter", "TemporalAffinityFilter", "CrossRegression"])
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_non_finite_inputs_give_all_nan_like_numba(op, bad):
+    """As the numba drivers (nan_on_nonfinite over every input, docs/reliability.md): a NaN or
+    Inf in any pixel buffer fills every output with NaN; finite inputs give finite outputs."""
+    from rtdenoise.ops import get_spec
+    from rtdenoise.runtime.kernels import KERNELS
+
+    spec = get_spec(op)
+    attrs = spec.attr_sets()[0]
+    sess = cpp_session(eops.single_op_model(op, None, attrs, with_function=False))
+    inputs = spec.example_inputs((1, 3, 12, 10), attrs, np.random.default_rng(2))
+    names = spec.input_names
+    assert all(np.isfinite(o).all() for o in sess.run(None, dict(zip(names, inputs, strict=True))))
+    for i, a in enumerate(inputs):
+        if a.ndim == 0:  # a kernel size: not a pixel buffer
+            continue
+        x = [b.copy() for b in inputs]
+        x[i].flat[7] = bad
+        outs = sess.run(None, dict(zip(names, x, strict=True)))
+        numba = KERNELS[op](*x, **attrs)
+        for o, n in zip(outs, numba if isinstance(numba, tuple) else (numba,), strict=True):
+            assert np.isnan(o).all() and np.isnan(n).all(), (op, i)
+
+
+@pytest.mark.parametrize("size, message", [(4.0, "got 4"), (2.5, "got 2.5"), (65.0, "got 65")])
+def test_a_bad_kernel_size_input_is_an_ort_error_naming_op_and_cause(size, message):
+    from rtdenoise.ops import get_spec
+
+    spec = get_spec("AffinityFilter")
+    model = eops.single_op_model("AffinityFilter", None, {"dilation": 1}, with_function=False)
+    sess = cpp_session(model)
+    inputs = spec.example_inputs((1, 3, 8, 9), {"dilation": 1}, np.random.default_rng(0))
+    feed = dict(zip(spec.input_names, inputs, strict=True))
+    feed["kernel_size"] = np.array(size, np.float32)
+    cause = "AffinityFilter: kernel size must be an odd integer in [1, 63], " + message
+    with pytest.raises(Exception, match=re.escape("rtdenoise_ops: " + cause)):
+        sess.run(None, feed)
+    feed["image"][0, 0, 0, 0] = np.nan  # the finiteness guard first, as the numba driver
+    assert np.isnan(sess.run(None, feed)[0]).all()
 
 
 def test_empty_inputs_give_empty_outputs():

@@ -261,8 +261,9 @@ print("ok", fast_bridge.CALLS["KernelApply"])
 
 # ------------------------------------------------- the C++ library rtdenoise_ops (native-cpp)
 
-# The ops the library holds (runtime/bridge/native_ops/kernels.cpp): every op of demo:afn,
-# demo:wskp and demo:nbg.
+# The ops the library holds (runtime/bridge/native_ops/: the tables of kernels.cpp,
+# affinity.cpp and crossreg.cpp): every op of demo:afn, demo:wskp, demo:nbg, demo:affinity
+# and demo:crossreg.
 CPP_OPS = [
     "KernelApply",
     "SoftmaxKernelApply",
@@ -272,6 +273,10 @@ CPP_OPS = [
     "TemporalAccumulation",
     "WeightSharingFilter",
     "BilateralGrid",
+    "AffinityFilter",
+    "TemporalAffinityFilter",
+    "CrossBilateralFilter",
+    "CrossRegression",
 ]
 
 

@@ -38,10 +38,14 @@ FILE = {"win32": "rtdenoise_ops.dll", "darwin": "librtdenoise_ops.dylib"}.get(
 ENV_SWITCH = "RTDENOISE_NATIVE_OPS"
 ABI = 1  # rtdenoise_ops_abi() of the library this module speaks to
 # Ops the library holds but the default does not use yet: measured slower than their numba
-# kernel at 720p (benchmarks/README.md, "The C++ custom-op library"): BilateralGrid 0.72-0.85x,
-# demo:nbg's frame 0.73-0.84x. A model with one of them keeps the numba path unless it asks for
-# fast_kernels="native-cpp" (a C or C++ host gets them: faster than the portable bodies).
-NOT_BY_DEFAULT = frozenset({"BilateralGrid"})
+# kernel at 720p (benchmarks/README.md, "The C++ custom-op library"; numba / C++ from
+# interleaved runs on the loaded 2-core VM): BilateralGrid 0.72-0.85x, demo:nbg's frame
+# 0.73-0.84x; TemporalAffinityFilter 0.65-0.94x in three runs, AffinityFilter 0.88x, 1.16x,
+# 0.95x, demo:affinity's frame 0.95x (at 320x240 both ahead, 1.03-1.26x). A model with one
+# of them keeps the numba path unless it asks for fast_kernels="native-cpp" (a C or C++ host
+# gets them: faster than the portable bodies). CrossBilateralFilter and CrossRegression
+# (1.02-1.13x, demo:crossreg's frame 1.06x) are used by default.
+NOT_BY_DEFAULT = frozenset({"BilateralGrid", "AffinityFilter", "TemporalAffinityFilter"})
 
 
 class NativeOpsError(RuntimeError):

@@ -54,7 +54,9 @@ struct OpDef {
     const int64_t *optional_defaults = nullptr;
 };
 
-const OpDef *op_table(int *count);
+const OpDef *op_table(int *count);           // kernels.cpp (and filters.cpp): afn, wskp, nbg
+const OpDef *affinity_op_table(int *count);  // affinity.cpp: demo:affinity's ops
+const OpDef *crossreg_op_table(int *count);  // crossreg.cpp: demo:crossreg's ops
 
 /* Split [0, rows) into contiguous chunks run by up to `threads` threads (the caller's one of
  * them), at most one per GRAIN of `work` (about the multiply-adds of the call: a thread

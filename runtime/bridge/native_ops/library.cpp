@@ -1,8 +1,9 @@
 /* rtdenoise_ops: the rtdenoise custom ops as an ONNX Runtime custom-op library, no Python
  * inside. Any ORT host loads it (SessionOptions.register_custom_ops_library in Python,
  * RegisterCustomOpsLibrary / RegisterCustomOps in C and C++), and every op of domain
- * `rtdenoise` that it holds (kernels.cpp) then runs its forward kernel here on ORT's own
- * buffers, in place of the model-local function body.
+ * `rtdenoise` that it holds (the tables of kernels.cpp, affinity.cpp and crossreg.cpp) then
+ * runs its forward kernel here on ORT's own buffers, in place of the model-local function
+ * body.
  *
  * Every failure is an OrtStatus naming the op and the cause (the spec's check, a missing
  * attribute, a wrong element type, memory): nothing aborts and no exception crosses ORT's C
@@ -18,6 +19,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <exception>
+#include <initializer_list>
 #include <new>
 #include <string>
 #include <thread>
@@ -228,40 +230,44 @@ std::string names;
 
 void build_ops() {
     if (n_ops) return;
-    int count = 0;
-    const rtd::OpDef *defs = rtd::op_table(&count);
-    for (int i = 0; i < count && i < static_cast<int>(sizeof ops / sizeof ops[0]); ++i) {
-        Op &op = ops[i];
-        std::memset(&op, 0, sizeof op);
-        ort::CustomOp &c = op.base;
-        c.version = ort::CUSTOM_OP_VERSION;
-        c.CreateKernel = unused_create;  // ORT uses the V2 forms, which return a status
-        c.GetName = get_name;
-        c.GetExecutionProviderType = get_provider;
-        c.GetInputType = element_float;
-        c.GetInputTypeCount = input_count;
-        c.GetOutputType = element_float;
-        c.GetOutputTypeCount = output_count;
-        c.KernelCompute = unused_compute;
-        c.KernelDestroy = destroy_kernel;
-        c.GetInputCharacteristic = required;
-        c.GetOutputCharacteristic = required;
-        c.GetInputMemoryType = default_memory;
-        c.GetVariadicInputMinArity = one;
-        c.GetVariadicInputHomogeneity = one;
-        c.GetVariadicOutputMinArity = one;
-        c.GetVariadicOutputHomogeneity = one;
-        c.CreateKernelV2 = create_kernel;
-        c.KernelComputeV2 = compute;
-        c.GetStartVersion = one;
-        c.GetEndVersion = last_version;
-        c.GetMayInplace = no_pairs;
-        c.ReleaseMayInplace = release_pairs;
-        c.GetAliasMap = no_pairs;
-        c.ReleaseAliasMap = release_pairs;
-        op.def = &defs[i];
-        names += (i ? "," : "") + std::string(defs[i].name);
-        n_ops = i + 1;
+    const int capacity = static_cast<int>(sizeof ops / sizeof ops[0]);
+    for (auto table : {rtd::op_table, rtd::affinity_op_table, rtd::crossreg_op_table}) {
+        int count = 0;
+        const rtd::OpDef *defs = table(&count);
+        for (int t = 0; t < count && n_ops < capacity; ++t) {
+            const int i = n_ops;
+            Op &op = ops[i];
+            std::memset(&op, 0, sizeof op);
+            ort::CustomOp &c = op.base;
+            c.version = ort::CUSTOM_OP_VERSION;
+            c.CreateKernel = unused_create;  // ORT uses the V2 forms, which return a status
+            c.GetName = get_name;
+            c.GetExecutionProviderType = get_provider;
+            c.GetInputType = element_float;
+            c.GetInputTypeCount = input_count;
+            c.GetOutputType = element_float;
+            c.GetOutputTypeCount = output_count;
+            c.KernelCompute = unused_compute;
+            c.KernelDestroy = destroy_kernel;
+            c.GetInputCharacteristic = required;
+            c.GetOutputCharacteristic = required;
+            c.GetInputMemoryType = default_memory;
+            c.GetVariadicInputMinArity = one;
+            c.GetVariadicInputHomogeneity = one;
+            c.GetVariadicOutputMinArity = one;
+            c.GetVariadicOutputHomogeneity = one;
+            c.CreateKernelV2 = create_kernel;
+            c.KernelComputeV2 = compute;
+            c.GetStartVersion = one;
+            c.GetEndVersion = last_version;
+            c.GetMayInplace = no_pairs;
+            c.ReleaseMayInplace = release_pairs;
+            c.GetAliasMap = no_pairs;
+            c.ReleaseAliasMap = release_pairs;
+            op.def = &defs[t];
+            names += (i ? "," : "") + std::string(defs[t].name);
+            n_ops = i + 1;
+        }
     }
 }
 
