@@ -48,7 +48,7 @@ def fwidths(depth: torch.Tensor, normal: torch.Tensor) -> tuple[torch.Tensor, to
     return fw_z, fw_n
 
 
-def _gather(flat: torch.Tensor, ix: torch.Tensor, iy: torch.Tensor, w: int) -> torch.Tensor:
+def gather_pixels(flat: torch.Tensor, ix: torch.Tensor, iy: torch.Tensor, w: int) -> torch.Tensor:
     """flat (N, C, H*W) read at integer positions (ix, iy) (N, H, W), clamped -> (N, C, H, W)."""
     n, c, hw = flat.shape
     h = hw // w
@@ -78,7 +78,7 @@ def svgf_reproject(
     def tap(fx: torch.Tensor, fy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Values (N, C, H, W) at integer float positions and whether the tap passes."""
         ix, iy = fx.long(), fy.long()
-        g = _gather(flat, ix, iy, w)
+        g = gather_pixels(flat, ix, iy, w)
         inside = (fx >= 0) & (fx <= w - 1) & (fy >= 0) & (fy <= h - 1)
         depth_ok = (g[:, c + 3 : c + 4] - depth).abs() <= config.depth_threshold * (fw_z + 1e-2)
         dn = torch.sqrt(((g[:, c : c + 3] - normal) ** 2).sum(dim=1, keepdim=True))

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import torch
 
 from .ops.reproject import reproject
+from .reprojection import gather_pixels
 
 
 @dataclass(frozen=True)
@@ -64,6 +65,20 @@ def in_bounds(motion: torch.Tensor) -> torch.Tensor:
     return inside.unsqueeze(1)
 
 
+def geometry_agrees(
+    depth: torch.Tensor,
+    normal: torch.Tensor,
+    prev_depth: torch.Tensor,
+    prev_normal: torch.Tensor,
+    config: TemporalConfig,
+) -> torch.Tensor:
+    """(N, 1, H, W) bool: the previous geometry matches the current pixel's (relative depth
+    within depth_tolerance, normal dot above normal_threshold; a zero normal never passes)."""
+    depth_ok = (prev_depth - depth).abs() < config.depth_tolerance * depth.abs()
+    normal_ok = (prev_normal * normal).sum(dim=1, keepdim=True) > config.normal_threshold
+    return depth_ok & normal_ok
+
+
 def history_validity(
     motion: torch.Tensor,
     depth: torch.Tensor,
@@ -79,9 +94,8 @@ def history_validity(
     current pixels. Valid = in bounds & relative depth agreement & normal agreement & not
     reset. Pixels with a zero normal (background) never pass the normal test.
     """
-    depth_ok = (prev_depth - depth).abs() < config.depth_tolerance * depth.abs()
-    normal_ok = (prev_normal * normal).sum(dim=1, keepdim=True) > config.normal_threshold
-    valid = (in_bounds(motion) & depth_ok & normal_ok).to(depth.dtype)
+    agree = geometry_agrees(depth, normal, prev_depth, prev_normal, config)
+    valid = (in_bounds(motion) & agree).to(depth.dtype)
     return valid * (1.0 - reset)  # reset = 1 ignores the history, arithmetically
 
 
@@ -105,17 +119,6 @@ def accumulate(
     acc = alpha * current + (1.0 - alpha) * hist
     new_len = torch.clamp(n_prev + 1.0, max=config.max_history)
     return acc, new_len, alpha
-
-
-def _tap_values(flat: torch.Tensor, fx: torch.Tensor, fy: torch.Tensor) -> torch.Tensor:
-    """flat (N, K, H*W) read at the integer-valued float positions (fx, fy) (N, H, W),
-    clamped into the image (a tap outside is rejected, its value never used) -> (N, K, H, W)."""
-    n, k, _ = flat.shape
-    h, w = fx.shape[1], fx.shape[2]
-    ix = fx.clamp(0, w - 1).long()
-    iy = fy.clamp(0, h - 1).long()
-    idx = (iy * w + ix).reshape(n, 1, h * w).expand(n, k, h * w)
-    return torch.gather(flat, 2, idx).reshape(n, k, h, w)
 
 
 def per_tap_history(
@@ -145,12 +148,10 @@ def per_tap_history(
     total = torch.zeros_like(depth)
     for ox, oy, weight in ((0, 0, ex * ey), (1, 0, ax * ey), (0, 1, ex * ay), (1, 1, ax * ay)):
         fx, fy = x0 + ox, y0 + oy
-        g = _tap_values(flat, fx, fy)
+        g = gather_pixels(flat, fx.long(), fy.long(), w)
         inside = ((fx >= 0) & (fx <= w - 1) & (fy >= 0) & (fy <= h - 1)).unsqueeze(1)
         prev_normal, prev_depth = g[:, c1 : c1 + 3], g[:, c1 + 3 : c1 + 4]
-        depth_ok = (prev_depth - depth).abs() < config.depth_tolerance * depth.abs()
-        normal_ok = (prev_normal * normal).sum(dim=1, keepdim=True) > config.normal_threshold
-        ok = inside & depth_ok & normal_ok
+        ok = inside & geometry_agrees(depth, normal, prev_depth, prev_normal, config)
         weight = torch.where(ok, weight, torch.zeros_like(weight))
         acc = acc + weight * torch.where(ok, g[:, :c1], torch.zeros_like(g[:, :c1]))
         total = total + weight
