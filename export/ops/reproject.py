@@ -44,9 +44,11 @@ def _axis_taps(a: str, pixel: str, motion: str, size_f: str, size_i: str) -> lis
     ]
 
 
-@function_body("Reproject")
-def reproject_body(opset: int) -> list[onnx.NodeProto]:
-    """rtdenoise.Reproject in standard ops."""
+def sampling_grid(state: str, opset: int) -> list[onnx.NodeProto]:
+    """The nodes every warp of `state` (N, C, H, W) by `motion` starts with: the shape ("shape",
+    "n", "nc", "h_i"/"w_i" and their floats), the flat planes "flat" (N, C, H*W) with
+    "flat_dims", the index shape "idx_shape" (N, 1, -1), the pixel grid "xs" (W,) / "ys"
+    (H, 1), the motion planes "mx" / "my" (N, H, W) and the constants they use."""
     mk = helper.make_node
     return [
         int_const("zero_i", [0]),
@@ -54,11 +56,10 @@ def reproject_body(opset: int) -> list[onnx.NodeProto]:
         int_const("two_i", [2]),
         int_const("three_i", [3]),
         int_const("four_i", [4]),
-        int_const("i1", 1),
         int_const("minus1_i", [-1]),
         float_const("f0", 0.0),
         float_const("f1", 1.0),
-        mk("Shape", ["previous"], ["shape"]),
+        mk("Shape", [state], ["shape"]),
         mk("Slice", ["shape", "zero_i", "two_i"], ["nc"]),
         mk("Slice", ["shape", "zero_i", "one_i"], ["n"]),
         mk("Slice", ["shape", "two_i", "three_i"], ["h1"]),
@@ -68,7 +69,7 @@ def reproject_body(opset: int) -> list[onnx.NodeProto]:
         mk("Cast", ["h_i"], ["h_f"], to=TensorProto.FLOAT),
         mk("Cast", ["w_i"], ["w_f"], to=TensorProto.FLOAT),
         mk("Concat", ["nc", "minus1_i"], ["flat_shape"], axis=0),  # (N, C, -1)
-        mk("Reshape", ["previous", "flat_shape"], ["flat"]),
+        mk("Reshape", [state, "flat_shape"], ["flat"]),
         mk("Shape", ["flat"], ["flat_dims"]),
         mk("Concat", ["n", "one_i", "minus1_i"], ["idx_shape"], axis=0),  # (N, 1, -1)
         mk("Range", ["f0", "w_f", "f1"], ["xs"]),  # (W,)
@@ -79,6 +80,16 @@ def reproject_body(opset: int) -> list[onnx.NodeProto]:
         else mk("Split", ["motion"], ["mx4", "my4"], axis=1),
         mk("Squeeze", ["mx4", "one_i"], ["mx"]),  # (N, H, W)
         mk("Squeeze", ["my4", "one_i"], ["my"]),
+    ]
+
+
+@function_body("Reproject")
+def reproject_body(opset: int) -> list[onnx.NodeProto]:
+    """rtdenoise.Reproject in standard ops."""
+    mk = helper.make_node
+    return [
+        *sampling_grid("previous", opset),
+        int_const("i1", 1),
         *_axis_taps("x", "xs", "mx", "w_f", "w_i"),
         *_axis_taps("y", "ys", "my", "h_f", "h_i"),
         *_tap("nw", "y0", "x0"),

@@ -16,8 +16,8 @@ from __future__ import annotations
 import onnx
 from onnx import TensorProto, helper
 
-from .base import attr_const, float_const, function_body, int_const
-from .reproject import reproject_body
+from .base import attr_const, float_const, function_body
+from .reproject import reproject_body, sampling_grid
 
 OUTPUTS = ("accumulated", "blend", "next_ta", "next_geometry")
 
@@ -145,44 +145,16 @@ def _per_tap_body(opset: int) -> list[onnx.NodeProto]:
     """per_tap = 1: models.temporal.per_tap_history, then the blend."""
     mk = helper.make_node
     base = [
-        int_const("zero_i", [0]),
-        int_const("one_i", [1]),
-        int_const("two_i", [2]),
-        int_const("three_i", [3]),
-        int_const("four_i", [4]),
-        int_const("minus1_i", [-1]),
-        float_const("f0", 0.0),
-        float_const("f1", 1.0),
+        mk("Concat", ["ta_state", "geometry_state"], ["previous"], axis=1),
+        *sampling_grid("previous", opset),  # flat: (N, C + 5, H*W)
         float_const("ta_half", 0.5),
         float_const("tp_cut", 0.01),
-        mk("Concat", ["ta_state", "geometry_state"], ["previous"], axis=1),
-        mk("Shape", ["previous"], ["shape"]),
-        mk("Slice", ["shape", "zero_i", "two_i"], ["nc"]),
-        mk("Slice", ["shape", "zero_i", "one_i"], ["n"]),
-        mk("Slice", ["shape", "two_i", "three_i"], ["h1"]),
-        mk("Slice", ["shape", "three_i", "four_i"], ["w1"]),
-        mk("Squeeze", ["h1", "zero_i"], ["h_i"]),
-        mk("Squeeze", ["w1", "zero_i"], ["w_i"]),
-        mk("Cast", ["h_i"], ["h_f"], to=TensorProto.FLOAT),
-        mk("Cast", ["w_i"], ["w_f"], to=TensorProto.FLOAT),
         mk("Sub", ["w_f", "f1"], ["tp_x_max"]),
         mk("Sub", ["h_f", "f1"], ["tp_y_max"]),
-        mk("Concat", ["nc", "minus1_i"], ["flat_shape"], axis=0),  # (N, C + 5, -1)
-        mk("Reshape", ["previous", "flat_shape"], ["flat"]),
-        mk("Shape", ["flat"], ["flat_dims"]),
-        mk("Concat", ["n", "one_i", "minus1_i"], ["idx_shape"], axis=0),  # (N, 1, -1)
         mk("Shape", ["current"], ["ta_c"], start=1, end=2),  # [C]
         mk("Add", ["ta_c", "one_i"], ["ta_c1"]),
         mk("Add", ["ta_c", "four_i"], ["ta_c4"]),
         mk("Add", ["ta_c4", "one_i"], ["ta_c5"]),
-        mk("Range", ["f0", "w_f", "f1"], ["xs"]),  # (W,)
-        mk("Range", ["f0", "h_f", "f1"], ["ys0"]),
-        mk("Unsqueeze", ["ys0", "one_i"], ["ys"]),  # (H, 1)
-        mk("Split", ["motion"], ["mx4", "my4"], axis=1, num_outputs=2)
-        if opset >= 18
-        else mk("Split", ["motion"], ["mx4", "my4"], axis=1),
-        mk("Squeeze", ["mx4", "one_i"], ["mx"]),  # (N, H, W)
-        mk("Squeeze", ["my4", "one_i"], ["my"]),
         mk("Add", ["xs", "mx"], ["tp_px"]),
         mk("Add", ["ys", "my"], ["tp_py"]),
         mk("Floor", ["tp_px"], ["tp_x0"]),
