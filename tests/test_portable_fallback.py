@@ -34,8 +34,10 @@ FRAMES = 4  # of the committed sequence seq_000 (64x64), state carried from fram
     "missing, cpp", [("onnxruntime_extensions", "1"), ("numba", "1"), ("numba", "0")]
 )
 def test_denoise_run_without_a_kernel_library(tmp_path, missing, cpp):
+    """demo:nbg (BilateralGrid: on numba where numba is installed) through denoise-run, which
+    says on its timing line which path ran."""
     seq = sample_sequences()[0]
-    args = [str(seq / "frame_000[0-2].exr"), "-o", str(tmp_path), "--model", "demo:wskp"]
+    args = [str(seq / "frame_000[0-2].exr"), "-o", str(tmp_path), "--model", "demo:nbg"]
     proc = subprocess.run(
         [sys.executable, "-c", without(missing) + SCRIPT, missing, *args],
         capture_output=True,
@@ -47,12 +49,14 @@ def test_denoise_run_without_a_kernel_library(tmp_path, missing, cpp):
     lines = other_lines(proc.stderr)
     if missing == "onnxruntime_extensions":  # the native bridge needs none of it
         assert lines == []
+        assert "custom ops: native (numba kernels)" in proc.stdout
     elif cpp == "1" and native_cpp.available():  # the C++ library needs no numba
         assert lines == []
         assert "custom ops: native-cpp" in proc.stdout
     else:
         assert len(lines) == 1 and lines[0].startswith("warning: fast kernels unavailable"), lines
         assert missing in lines[0] and "portable ONNX bodies" in lines[0]
+        assert "custom ops: portable ONNX bodies" in proc.stdout
     assert sorted(p.name for p in tmp_path.glob("*.exr")) == [f"frame_000{i}.exr" for i in range(3)]
     assert "PSNR" in proc.stdout
 
