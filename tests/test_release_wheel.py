@@ -2,12 +2,12 @@
 from a copy of this checkout with every extension required, repairs it with auditwheel to a
 manylinux tag, passes `twine check` (with the sdist), installs it in a fresh venv with binary
 wheels only and no compiler (CC=false), and there scripts/check_wheel.py finds every
-Extension of setup.py compiled in, no torch, the native bridge, and `denoise-run --demo`
-passing.
+Extension of setup.py compiled in, neither torch nor numba installed (no extra asked for),
+every shipped demo on the C++ library, and `denoise-run --demo` passing.
 
-Part of CI's plain `python -m pytest -q`: 2-4 minutes on 2 shared cores, most of it pip
-installing the dependencies into the fresh venv and numba compiling the kernels afresh there.
-Needs a package index (PyPI): skipped without one.
+Part of CI's plain `python -m pytest -q`: about 2 minutes on 2 shared cores, most of it
+building the wheel and pip installing the dependencies into the fresh venv. Needs a package
+index (PyPI): skipped without one.
 """
 
 from __future__ import annotations
