@@ -92,8 +92,8 @@ def choose_bridge(ops: Iterable[str] | None) -> str:
 
 
 def _native_cpp_refusal(ops: Iterable[str] | None) -> str:
-    """Why the C++ library cannot run every op of `ops` here, as a phrase ("is turned off by
-    RTDENOISE_NATIVE_OPS=0"); "" when it can."""
+    """Why the C++ library cannot run every op of `ops` here (which the caller found), as a
+    phrase: "is turned off by RTDENOISE_NATIVE_OPS=0"."""
     from . import native_cpp
 
     if native_cpp.disabled_by_env():
@@ -103,8 +103,7 @@ def _native_cpp_refusal(ops: Iterable[str] | None) -> str:
         return f"is unavailable ({reason})"
     if ops is None:
         return "is not chosen for a model whose ops are not known"
-    missing = native_cpp.missing_ops(ops)
-    return f"lacks {', '.join(missing)}" if missing else ""
+    return f"lacks {', '.join(native_cpp.missing_ops(ops))}"
 
 
 def _no_numba(context: str) -> ModuleNotFoundError:
