@@ -28,7 +28,12 @@ EXIT_BAD_INPUT = 2
 EXIT_FAILURE = 1
 
 # Modules that only an extra installs (pyproject.toml, [project.optional-dependencies]).
-OPTIONAL_MODULES = frozenset({"torch", "onnx", "onnxscript", "mitsuba", "drjit", "pyoidn", "ray"})
+# Modules only an extra installs (numba, onnxruntime_extensions: the `numba` extra, which
+# `export` and `train` include).
+OPTIONAL_MODULES = frozenset(
+    {"torch", "onnx", "onnxscript", "mitsuba", "drjit", "pyoidn", "ray", "numba",
+     "onnxruntime_extensions"}
+)  # fmt: skip
 # Distributions whose versions `--version` reports (metadata only: nothing is imported).
 REPORTED_VERSIONS = ("onnxruntime", "onnxruntime-extensions", "numba", "numpy", "torch")
 

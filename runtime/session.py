@@ -3,8 +3,9 @@ options, threads, the CPU arena and the fast-kernel bridge (docs/architecture.md
 
 `open_session` makes the options (threads, spinning, thread placement, a shared arena), registers
 the fast kernels through the bridge asked for (`rtdenoise.runtime.bridge`; the portable bodies,
-with one warning, where numba is missing), loads the model and checks that every provider asked
-for started. `kernel_thread_count` is the rule for the fast kernels' threads on a frame size.
+with one warning, where neither the C++ library nor numba can run them), loads the model and
+checks that every provider asked for started. `kernel_thread_count` is the rule for the fast
+kernels' threads on a frame size.
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ SERIAL_KERNELS_BELOW = 256 * 256
 ALLOW_SPINNING = "session.intra_op.allow_spinning"  # ORT session config key, "0" or "1"
 # ORT session config key: where a model loaded from bytes finds its external data files.
 EXTERNAL_DATA_FOLDER = "session.model_external_initializers_file_folder_path"
+_portable_warned = False  # the portable bodies' warning was given (once per process)
 
 
 def kernel_thread_count(
@@ -139,24 +141,33 @@ def register_fast_kernels(
     options: ort.SessionOptions, bridge: str | None, ops: frozenset[str] | None = None
 ) -> str:
     """Register the fast kernels of the rtdenoise custom ops `ops` (the model's) through
-    `bridge` (None: the best available for them); the bridge used, or "" with a warning where
-    numba (or, for the extensions bridge, onnxruntime-extensions) is not installed: the
-    portable bodies run then."""
-    try:
-        from . import bridge as bridges
+    `bridge` (None: the best available for them); the bridge used. Where none can run them
+    (no C++ library holding them all, and no numba or, for the extensions bridge, no
+    onnxruntime-extensions) "": the portable bodies run, with one warning per process saying
+    what to install; InputError naming the extra for a numba bridge asked for by name."""
+    global _portable_warned
+    from . import bridge as bridges
 
+    try:
         return bridges.register_fast_kernels(options, bridge, ops)
     except ModuleNotFoundError as exc:
-        if exc.name and exc.name.split(".")[0] in ("onnxruntime_extensions", "numba"):
+        missing = (exc.name or "").split(".")[0]
+        if missing not in ("onnxruntime_extensions", "numba"):
+            raise
+        if bridge is not None:
+            message = f"fast_kernels={bridge!r}: {exc}; pip install 'rtdenoise[numba]'"
+            raise InputError(message) from None
+        if not _portable_warned:
+            _portable_warned = True
             warnings.warn(
-                f"fast kernels unavailable ({exc}): the custom ops run their portable ONNX "
-                "bodies, slower; numba and onnxruntime-extensions have wheels for CPython "
-                "3.10-3.13 on Linux x86_64/aarch64, macOS arm64 and Windows x64",
+                f"fast kernels unavailable: {exc}; the custom ops run their portable ONNX "
+                "bodies, slower; pip install 'rtdenoise[numba]' (wheels for CPython 3.10-3.13 "
+                "on Linux x86_64/aarch64, macOS arm64, Windows x64), or reinstall rtdenoise "
+                "with a C++17 compiler for the C++ library",
                 RuntimeWarning,
                 stacklevel=4,
             )
-            return ""
-        raise
+        return ""
     except ValueError as exc:  # an unknown bridge name
         raise InputError(f"fast_kernels={bridge!r}: {exc}") from None
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Build the Linux release wheel of this checkout, repair it to manylinux with auditwheel, install
 # it in a fresh venv where no compiler can run, and check it there (scripts/check_wheel.py:
-# every native part built in, no torch, the native bridge, `denoise-run --demo`).
+# every native part built in, no torch and no numba, every demo on the C++ library,
+# `denoise-run --demo`).
 #
 #   scripts/build_release_wheel.sh [OUT_DIR]   # default dist/: the repaired wheel and the sdist
 #

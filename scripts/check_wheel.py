@@ -7,9 +7,10 @@ test step, scripts/build_release_wheel.sh), from any folder but the checkout. Ch
 
 - every Extension that PROJECT_DIR/setup.py declares (found in its source, so a new one is
   checked without an edit here) imports from the install as a compiled module;
-- rtdenoise itself comes from the install, and no deep learning framework is installed;
-- the fast kernels reach ONNX Runtime through the native bridge (no fallback warning);
-- `denoise-run --demo` denoises the three bundled sequences.
+- rtdenoise itself comes from the install, and neither a deep learning framework nor numba
+  (the `numba` extra) is installed;
+- every shipped demo runs two frames on the C++ library (`native-cpp`), with no warning;
+- `denoise-run --demo` denoises the three bundled sequences on it.
 
 Exits 1 with one line per failed check.
 """
@@ -23,6 +24,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 
 
@@ -36,8 +38,10 @@ def declared_extensions(setup_py: Path) -> list[str]:
         called = func.id if isinstance(func, ast.Name) else getattr(func, "attr", None)
         if called != "Extension":
             continue
-        arg = node.args[0] if node.args else next(
-            (k.value for k in node.keywords if k.arg == "name"), None
+        arg = (
+            node.args[0]
+            if node.args
+            else next((k.value for k in node.keywords if k.arg == "name"), None)
         )
         if not (isinstance(arg, ast.Constant) and isinstance(arg.value, str)):
             raise SystemExit(f"{setup_py}:{node.lineno}: an Extension without a literal name")
@@ -60,6 +64,33 @@ def _installed_file(name: str) -> str | None:
     return None
 
 
+def demo_problems() -> list[str]:
+    """Each shipped demo over two synthetic frames: a problem unless it ran on native-cpp,
+    with finite outputs and no warning."""
+    import numpy as np
+
+    from rtdenoise.runtime import Denoiser
+    from rtdenoise.runtime.sequences.samples import sample_features_of
+    from rtdenoise.runtime.sequences.synthetic import synthetic_frames
+    from rtdenoise.shipped import MODELS_DIR
+
+    demos = sorted(p.stem for p in MODELS_DIR.glob("*.onnx"))
+    problems = [] if demos else [f"no demo model in {MODELS_DIR}"]
+    for demo in demos:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            den = Denoiser(f"demo:{demo}")
+            features = sample_features_of(den.config)
+            frames = synthetic_frames(den.required_buffers, 2, 40, 56, sample_features=features)
+            finite = all(np.isfinite(den.process(f)).all() for f in frames)
+        if den.bridge != "native-cpp":
+            problems.append(f"demo:{demo}'s custom ops run on {den.bridge!r}, not 'native-cpp'")
+        if not finite:
+            problems.append(f"demo:{demo} gave a non-finite output")
+        problems += [f"demo:{demo} warned: {w.message}" for w in caught]
+    return problems
+
+
 def check(project: Path) -> list[str]:
     problems = []
     import rtdenoise
@@ -73,16 +104,11 @@ def check(project: Path) -> list[str]:
         origin = _installed_file(name)
         if origin is None:
             problems.append(f"extension {name}: not in the installed wheel")
-    framework = [m for m in ("torch", "onnx", "onnxscript") if importlib.util.find_spec(m)]
-    if framework:
-        problems.append(f"the base install pulled in {', '.join(framework)}")
-
-    from rtdenoise.runtime import Denoiser
-
-    for demo, wanted in (("demo:afn", "native-cpp"), ("demo:nbg", "native")):
-        bridge = Denoiser(demo).bridge
-        if bridge != wanted:
-            problems.append(f"{demo}'s fast kernels run through {bridge!r}, not {wanted!r}")
+    extras = ("torch", "onnx", "onnxscript", "numba", "onnxruntime_extensions")
+    pulled = [m for m in extras if importlib.util.find_spec(m)]
+    if pulled:
+        problems.append(f"the base install pulled in {', '.join(pulled)}")
+    problems += demo_problems()
     scripts = Path(sys.executable).parent
     command = scripts / ("denoise-run.exe" if os.name == "nt" else "denoise-run")
     with tempfile.TemporaryDirectory() as out:
@@ -94,6 +120,8 @@ def check(project: Path) -> list[str]:
         problems.append(f"denoise-run --demo failed ({proc.returncode}): {proc.stderr[-2000:]}")
     elif outputs != 24:
         problems.append(f"denoise-run --demo wrote {outputs} frames, not 24")
+    elif proc.stdout.count("custom ops: native-cpp") != 3:
+        problems.append("denoise-run --demo ran a sequence off the C++ library: " + proc.stdout)
     warned = [line for line in proc.stderr.splitlines() if line.startswith(("warning", "error"))]
     if warned:
         problems.append(f"denoise-run --demo warned: {warned[0]}")

@@ -1,5 +1,5 @@
 """The packaging facts the README promises (pyproject.toml): a base install without a deep
-learning framework, extras by role, the fast kernels only where their wheels exist."""
+learning framework or numba, extras by role, the numba kernels only where their wheels exist."""
 
 from __future__ import annotations
 
@@ -20,6 +20,8 @@ else:  # pragma: no cover - Python 3.10
 ROOT = Path(__file__).resolve().parents[1]
 PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
 BASE = {Requirement(r).name.lower(): Requirement(r) for r in PROJECT["dependencies"]}
+EXTRAS = PROJECT["optional-dependencies"]
+NUMBA = {Requirement(r).name.lower(): Requirement(r) for r in EXTRAS["numba"]}
 
 
 def test_installed_version_is_the_package_version():
@@ -27,17 +29,19 @@ def test_installed_version_is_the_package_version():
 
 
 def test_base_install_has_no_framework_and_extras_by_role():
-    """The base dependencies are the runtime's; torch, onnx, mitsuba come with extras."""
-    assert set(BASE) == {
-        "numpy", "onnxruntime", "openexr", "typer", "rich", "tomli", "numba",
-        "onnxruntime-extensions",
-    }  # fmt: skip
-    extras = PROJECT["optional-dependencies"]
-    assert set(extras) == {"export", "train", "data", "bench", "cluster", "all", "test"}
+    """The base dependencies are the runtime's; numba, torch, onnx, mitsuba come with extras,
+    numba with every extra that imports the PyTorch models (export, train, bench) and test."""
+    assert set(BASE) == {"numpy", "onnxruntime", "openexr", "typer", "rich", "tomli"}
+    extras = EXTRAS
+    assert set(extras) == {"numba", "export", "train", "data", "bench", "cluster", "all", "test"}
     names = {e: {Requirement(r).name for r in reqs} for e, reqs in extras.items()}
+    assert set(NUMBA) == {"numba", "onnxruntime-extensions"}
     assert {"torch", "onnx", "onnxscript"} <= names["export"]
     assert names["train"] == {"rtdenoise"} and names["data"] == {"mitsuba"}
     assert names["cluster"] == {"ray"}
+    for extra in ("export", "test", "all"):
+        assert "numba" in Requirement(extras[extra][0]).extras, extra
+    assert extras["train"] == ["rtdenoise[export]"] and "rtdenoise[export]" in extras["bench"]
     torch = next(Requirement(r) for r in extras["export"] if r.startswith("torch"))
     assert all(s.operator == ">=" for s in torch.specifier)  # a newer torch is never downgraded
     assert isinstance(PROJECT["license"], str)  # SPDX expression, not the deprecated table
@@ -60,9 +64,9 @@ ENV = {"python_version": "3.11", "sys_platform": "linux", "platform_machine": "x
         ({"platform_machine": "armv7l"}, False),
     ],
 )
-def test_fast_kernels_only_where_both_have_wheels(env, fast):
+def test_numba_kernels_only_where_both_have_wheels(env, fast):
     for name in ("numba", "onnxruntime-extensions"):
-        assert BASE[name].marker.evaluate(ENV | env) is fast, name
+        assert NUMBA[name].marker.evaluate(ENV | env) is fast, name
     assert BASE["tomli"].marker.evaluate(ENV | {"python_version": "3.10"})
     assert not BASE["tomli"].marker.evaluate(ENV)
 

@@ -8,11 +8,11 @@ import sys
 import textwrap
 
 from contract_models import ema_model
+from without_modules import without
 
-SCRIPT = textwrap.dedent(
+SCRIPT = without("torch") + textwrap.dedent(  # any `import torch` now raises ImportError
     """
     import json, sys
-    sys.modules["torch"] = None  # any `import torch` now raises ImportError
     import numpy as np
     import rtdenoise.runtime
     from rtdenoise.runtime import Denoiser, read_exr, write_exr  # noqa: F401

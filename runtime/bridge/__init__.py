@@ -7,8 +7,10 @@ take precedence over the model-local function body of the same name (docs/archit
 - `native-cpp` (`native_cpp.py`, the C++ library `native_ops/`): the ops' own C++ kernels, no
   Python in the run; chosen by default for a model when it was built and holds every
   rtdenoise op of that model (`RTDENOISE_NATIVE_OPS=0` or an explicit bridge turns it off);
+  with numba installed not for the ops it runs slower (`native_cpp.NOT_BY_DEFAULT`);
 
-and two bridges to the numba kernels of `runtime/kernels/`, for every `KERNELS` entry:
+and two bridges to the numba kernels of `runtime/kernels/`, for every `KERNELS` entry, which
+need numba (the `numba` extra; nothing here imports it before one of them is chosen):
 
 - `native` (`native.py` + the compiled `_ort_bridge.c`): ONNX Runtime hands the kernels its
   own buffers, nothing is copied; the default wherever it was built;
@@ -23,6 +25,8 @@ Runtime's C boundary); `raise_kernel_errors()` raises it after the run. No torch
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import os
 import warnings
 from collections.abc import Iterable, Iterator
 from contextlib import AbstractContextManager, contextmanager, nullcontext
@@ -58,11 +62,20 @@ def default_bridge() -> str:
     return "extensions"
 
 
+def numba_installed() -> bool:
+    """True when numba can be imported (the `numba` extra), found without importing it."""
+    try:
+        return importlib.util.find_spec("numba") is not None
+    except (ImportError, ValueError):  # an import hook refuses it; a half-imported module
+        return False
+
+
 def choose_bridge(ops: Iterable[str] | None) -> str:
     """The bridge for a model whose rtdenoise ops are `ops` (None: not known): "native-cpp"
-    when the C++ library is built and holds all of them, none slower than numba
-    (`native_cpp.NOT_BY_DEFAULT`), and RTDENOISE_NATIVE_OPS does not turn it off; else the
-    best numba bridge (`default_bridge`)."""
+    when the C++ library is built and holds all of them and RTDENOISE_NATIVE_OPS does not
+    turn it off, and, where numba is installed, none of them is slower there than numba
+    (`native_cpp.NOT_BY_DEFAULT`); else the best numba bridge (`default_bridge`), or, where
+    numba is not installed, ModuleNotFoundError saying why the library cannot run them."""
     from . import native_cpp
 
     if (
@@ -70,10 +83,31 @@ def choose_bridge(ops: Iterable[str] | None) -> str:
         and not native_cpp.disabled_by_env()
         and native_cpp.available()
         and not native_cpp.missing_ops(ops)
-        and not native_cpp.NOT_BY_DEFAULT.intersection(ops)
+        and not (numba_installed() and native_cpp.NOT_BY_DEFAULT.intersection(ops))
     ):
         return "native-cpp"
+    if not numba_installed():
+        raise _no_numba("the C++ library " + _native_cpp_refusal(ops))
     return default_bridge()
+
+
+def _native_cpp_refusal(ops: Iterable[str] | None) -> str:
+    """Why the C++ library cannot run every op of `ops` here (which the caller found), as a
+    phrase: "is turned off by RTDENOISE_NATIVE_OPS=0"."""
+    from . import native_cpp
+
+    if native_cpp.disabled_by_env():
+        return f"is turned off by {native_cpp.ENV_SWITCH}={os.environ[native_cpp.ENV_SWITCH]}"
+    reason = native_cpp.unavailable_reason()
+    if reason is not None:
+        return f"is unavailable ({reason})"
+    if ops is None:
+        return "is not chosen for a model whose ops are not known"
+    return f"lacks {', '.join(native_cpp.missing_ops(ops))}"
+
+
+def _no_numba(context: str) -> ModuleNotFoundError:
+    return ModuleNotFoundError(f"numba is not installed and {context}", name="numba")
 
 
 def register_fast_kernels(
@@ -85,9 +119,11 @@ def register_fast_kernels(
     built) or "extensions" (onnxruntime-extensions' Python ops, which copy every input and
     output); None: `choose_bridge(ops)`, `ops` the model's rtdenoise op types. Returns the
     bridge used. ValueError for another name; ModuleNotFoundError when numba (or, for
-    "extensions", onnxruntime-extensions) is not installed."""
+    "extensions", onnxruntime-extensions) is not installed and the bridge needs it."""
     if bridge not in (None, *BRIDGES):
         raise ValueError(f"unknown fast-kernel bridge {bridge!r}; expected one of {BRIDGES}")
+    if bridge in NUMBA_BRIDGES and not numba_installed():
+        raise _no_numba(f"the {bridge!r} bridge runs the numba kernels")
     bridge = bridge or choose_bridge(ops)
     if bridge == "native-cpp":
         from . import native_cpp
@@ -142,6 +178,7 @@ __all__ = [
     "choose_bridge",
     "default_bridge",
     "kernel_threads",
+    "numba_installed",
     "numba_threads",
     "raise_kernel_errors",
     "register_fast_kernels",

@@ -13,8 +13,8 @@ runtime guards in Python, and `guard_buffer` / `zero_guide` here call the C form
 tests/test_native_guard.py can compare the two bit for bit.
 
 It holds only some ops (`covered_ops`); the chooser (`bridge.register_fast_kernels`) picks it
-for a model only when it holds every rtdenoise op of that model, none of them NOT_BY_DEFAULT.
-No numba, no torch here.
+for a model only when it holds every rtdenoise op of that model, and, where numba is
+installed, none of them NOT_BY_DEFAULT. No numba, no torch here.
 """
 
 from __future__ import annotations
@@ -41,9 +41,10 @@ ABI = 1  # rtdenoise_ops_abi() of the library this module speaks to
 # kernel at 720p (benchmarks/README.md, "The C++ custom-op library"; numba / C++ from
 # interleaved runs on the loaded 2-core VM): BilateralGrid 0.72-0.85x, demo:nbg's frame
 # 0.73-0.84x; TemporalAffinityFilter 0.65-0.94x in three runs, AffinityFilter 0.88x, 1.16x,
-# 0.95x, demo:affinity's frame 0.95x (at 320x240 both ahead, 1.03-1.26x). A model with one
-# of them keeps the numba path unless it asks for fast_kernels="native-cpp" (a C or C++ host
-# gets them: faster than the portable bodies). CrossBilateralFilter and CrossRegression
+# 0.95x, demo:affinity's frame 0.95x (at 320x240 both ahead, 1.03-1.26x). Where numba is
+# installed a model with one of them keeps the numba path unless it asks for
+# fast_kernels="native-cpp"; without numba (the base install) and for a C or C++ host it runs
+# here (faster than the portable bodies). CrossBilateralFilter and CrossRegression
 # (1.02-1.13x, demo:crossreg's frame 1.06x) are used by default.
 NOT_BY_DEFAULT = frozenset({"BilateralGrid", "AffinityFilter", "TemporalAffinityFilter"})
 
