@@ -84,8 +84,7 @@ def main(argv: list[str] | None = None) -> int:
                     pooled(learn[i : i + args.block], 0) for i in range(0, len(learn), args.block)
                 ],
                 "curve_frozen": [
-                    pooled(frozen[i : i + args.block], 0)
-                    for i in range(0, len(frozen), args.block)
+                    pooled(frozen[i : i + args.block], 0) for i in range(0, len(frozen), args.block)
                 ],
             }
             row["gain"] = row["learning"] - row["frozen"]

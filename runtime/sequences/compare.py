@@ -355,9 +355,7 @@ def quality(
             per_seq[name] = {k: s[k] for k in SCORES}
         out[c.name] = {
             "sequences": per_seq,
-            "mean": {
-                k: float(np.mean([v[k] for v in per_seq.values()])) for k in SCORES
-            },
+            "mean": {k: float(np.mean([v[k] for v in per_seq.values()])) for k in SCORES},
         }
     return out
 
