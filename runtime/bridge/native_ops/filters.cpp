@@ -16,6 +16,8 @@
 #pragma GCC optimize("fp-contract=fast")
 #endif
 
+#include <mutex>
+
 #include "kernels_common.h"
 
 namespace rtd {
@@ -480,6 +482,12 @@ std::string bilateral_grid_shapes(const Tensor *in, const int64_t *attrs, Shape 
     return "";
 }
 
+inline uint32_t float_bits(float f) {
+    uint32_t b;
+    std::memcpy(&b, &f, sizeof b);
+    return b;
+}
+
 inline float tent(float u) {
     float v = 1.0f - std::sqrt(u * u + TENT_EPS);
     return v > 0.0f ? v : 0.0f;
@@ -505,6 +513,45 @@ AxisTable axis_table(int64_t size, int64_t cell_size, int64_t cells) {
     return t;
 }
 
+/* The per-call buffers (hom, z0, z1, wz0, wz1, grid), kept from one call to the next: fresh
+ * ones each call cost a page fault per 4 KiB page on first touch (at 720p, s = 4, D = 64 the
+ * grid alone is 59 MB; measured, the kernel's fault handling was about a fifth of the op's
+ * time, and the numba kernel pays it too). They grow to the largest call and stay (1080p,
+ * s = 4, D = 64: about 200 MB). Not zero-filled: every element is written before it is read.
+ * One call at a time uses the kept ones (try_lock); another meanwhile allocates its own. */
+struct GridBuffers {
+    std::unique_ptr<float[]> hom, wz0, wz1, grid;
+    std::unique_ptr<int32_t[]> z0, z1;
+    int64_t pixels = 0, grid_size = 0;  // capacities
+
+    void reserve(int64_t n_pixels, int64_t n_grid) {
+        if (n_pixels > pixels) {
+            hom.reset(), z0.reset(), z1.reset(), wz0.reset(), wz1.reset(), pixels = 0;
+            hom.reset(new float[static_cast<size_t>(n_pixels * CELL)]);
+            z0.reset(new int32_t[static_cast<size_t>(n_pixels)]);
+            z1.reset(new int32_t[static_cast<size_t>(n_pixels)]);
+            wz0.reset(new float[static_cast<size_t>(n_pixels)]);
+            wz1.reset(new float[static_cast<size_t>(n_pixels)]);
+            pixels = n_pixels;
+        }
+        if (n_grid > grid_size) {
+            grid.reset(), grid_size = 0;
+            grid.reset(new float[static_cast<size_t>(n_grid)]);
+            grid_size = n_grid;
+        }
+    }
+};
+
+struct KeptGridBuffers {
+    std::mutex in_use;
+    GridBuffers buffers;
+};
+
+KeptGridBuffers &kept_grid_buffers() {
+    static KeptGridBuffers *kept = new KeptGridBuffers();  // never destroyed (as the pool)
+    return *kept;
+}
+
 struct GridArgs {
     const float *image, *guide;
     float *out;
@@ -512,10 +559,8 @@ struct GridArgs {
     AxisTable ys, xs;               // xs offsets: cells x (D x CELL)
     std::vector<float> rows;        // (gh, h): the weight of pixel row y for grid row i
     std::vector<int64_t> y_lo, y_hi;
-    // per-call buffers, not zero-filled (every element is written before it is read; a
-    // zero fill on the caller's thread took ~9 % of the op at 720p): first touched in parallel
-    std::unique_ptr<float[]> hom, wz0, wz1, grid;
-    std::unique_ptr<int32_t[]> z0, z1;
+    float *hom, *wz0, *wz1, *grid;  // GridBuffers'
+    int32_t *z0, *z1;
     int64_t grid_size = 0;
 };
 
@@ -524,7 +569,7 @@ RTD_CLONES void grid_prepare(GridArgs &a, int64_t begin, int64_t end) {
     const float depth_f = static_cast<float>(depth);
     for (int64_t task = begin; task < end; ++task) {
         const int64_t n = task / h, y = task % h;
-        float *RESTRICT row = a.hom.get() + (n * h + y) * w * CELL;
+        float *RESTRICT row = a.hom + (n * h + y) * w * CELL;
         for (int64_t k = 0; k < CELL - 1; ++k) {
             if (a.c0 + k < a.n_ch) {
                 const float *RESTRICT src = a.image + ((n * a.n_ch + a.c0 + k) * h + y) * w;
@@ -598,13 +643,13 @@ RTD_CLONES void grid_splat(GridArgs &a, int64_t begin, int64_t end) {
     const int64_t h = a.h, w = a.w, gh = a.gh;
     for (int64_t task = begin; task < end; ++task) {
         const int64_t n = task / gh, i = task % gh, base = task * a.row_size;
-        float *grid = a.grid.get();
+        float *grid = a.grid;
         std::fill(grid + base, grid + base + a.row_size, 0.0f);
         for (int64_t y = a.y_lo[i]; y < a.y_hi[i]; ++y) {
             float wy = a.rows[i * h + y];
             if (wy > 0.0f) {
                 const int64_t at = (n * h + y) * w;
-                const float *pixels = a.hom.get() + at * CELL;
+                const float *pixels = a.hom + at * CELL;
                 splat_row(grid, base, pixels, a.xs.i0.data(), a.xs.w0.data(), wy, &a.z0[at],
                           &a.z1[at], &a.wz0[at], &a.wz1[at], w);
                 splat_row(grid, base, pixels, a.xs.i1.data(), a.xs.w1.data(), wy, &a.z0[at],
@@ -622,7 +667,7 @@ RTD_CLONES void grid_splat(GridArgs &a, int64_t begin, int64_t end) {
 
 RTD_CLONES void grid_slice(GridArgs &a, int64_t begin, int64_t end) {
     const int64_t h = a.h, w = a.w, n_ch = a.n_ch, c0 = a.c0;
-    const float *RESTRICT grid = a.grid.get();  // only read here: the stores cannot change it
+    const float *RESTRICT grid = a.grid;  // only read here: the stores cannot change it
     const int64_t *RESTRICT x0 = a.xs.i0.data(), *RESTRICT x1 = a.xs.i1.data();
     const float *RESTRICT wx0 = a.xs.w0.data(), *RESTRICT wx1 = a.xs.w1.data();
     for (int64_t task = begin; task < end; ++task) {
@@ -631,8 +676,8 @@ RTD_CLONES void grid_slice(GridArgs &a, int64_t begin, int64_t end) {
         const int64_t at_b = (n * a.gh + a.ys.i1[y]) * a.row_size;
         const float wya = a.ys.w0[y], wyb = a.ys.w1[y];
         const int64_t at = (n * h + y) * w;
-        const int32_t *RESTRICT za = a.z0.get() + at, *RESTRICT zb = a.z1.get() + at;
-        const float *RESTRICT wza = a.wz0.get() + at, *RESTRICT wzb = a.wz1.get() + at;
+        const int32_t *RESTRICT za = a.z0 + at, *RESTRICT zb = a.z1 + at;
+        const float *RESTRICT wza = a.wz0 + at, *RESTRICT wzb = a.wz1 + at;
         float *o0 = a.out + ((n * n_ch + c0) * h + y) * w;
         float *o1 = a.out + ((n * n_ch + std::min(c0 + 1, n_ch - 1)) * h + y) * w;
         float *o2 = a.out + ((n * n_ch + std::min(c0 + 2, n_ch - 1)) * h + y) * w;
@@ -640,7 +685,10 @@ RTD_CLONES void grid_slice(GridArgs &a, int64_t begin, int64_t end) {
             float m0 = 0, m1 = 0, m2 = 0, den = 0;
             auto corner = [&](int64_t at_y, float wxy, int64_t zo, float wz) {
                 const float *RESTRICT c = grid + at_y + zo;
-                float wt = c[3] > 0.0f ? wxy * wz : 0.0f;
+                // wt = wxy wz where the cell's weight sum is positive, else 0, as a bit mask
+                // (a branch mispredicted: empty cells come at random)
+                const uint32_t keep = 0u - static_cast<uint32_t>(c[3] > 0.0f);
+                const float wt = bits_to_float(static_cast<int32_t>(float_bits(wxy * wz) & keep));
                 m0 += wt * c[0];
                 m1 += wt * c[1];
                 m2 += wt * c[2];
@@ -693,13 +741,15 @@ void bilateral_grid_run(const Tensor *in, Tensor *out, const int64_t *attrs, int
         a.y_hi.push_back(lo < 0 ? 0 : hi);
     }
     const int64_t pixels = a.n_img * a.h * a.w;
-    a.hom.reset(new float[static_cast<size_t>(pixels * CELL)]);
-    a.z0.reset(new int32_t[static_cast<size_t>(pixels)]);
-    a.z1.reset(new int32_t[static_cast<size_t>(pixels)]);
-    a.wz0.reset(new float[static_cast<size_t>(pixels)]);
-    a.wz1.reset(new float[static_cast<size_t>(pixels)]);
     a.grid_size = a.n_img * a.gh * a.row_size;
-    a.grid.reset(new float[static_cast<size_t>(a.grid_size)]);
+    KeptGridBuffers &kept = kept_grid_buffers();
+    std::unique_lock<std::mutex> lock(kept.in_use, std::try_to_lock);
+    GridBuffers own;
+    GridBuffers &buffers = lock.owns_lock() ? kept.buffers : own;
+    buffers.reserve(pixels, a.grid_size);
+    a.hom = buffers.hom.get(), a.grid = buffers.grid.get();
+    a.z0 = buffers.z0.get(), a.z1 = buffers.z1.get();
+    a.wz0 = buffers.wz0.get(), a.wz1 = buffers.wz1.get();
     for (a.c0 = 0; a.c0 < a.n_ch; a.c0 += CELL - 1) {  // channels 3 at a time
         parallel_for(a.n_img * a.h, threads, 8 * pixels,
                      [&](int64_t b, int64_t e) { grid_prepare(a, b, e); });
