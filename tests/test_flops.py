@@ -1,5 +1,6 @@
-"""benchmarks/flops.py counts the Conv multiply-adds of an exported graph; the shipped demo:afn
-fits Lee24's budget (<= 14 GFLOP per 1280 x 720 frame, FLOP = 2 x multiply-adds)."""
+"""benchmarks/flops.py counts the Conv multiply-adds of an exported graph; the shipped demo:afn's
+kernel prediction fits Lee24's budget (<= 14 GFLOP per 1280 x 720 frame, FLOP = 2 x
+multiply-adds)."""
 
 from __future__ import annotations
 
@@ -69,11 +70,15 @@ def test_zero_channels_padded_at_export_are_not_the_models_arithmetic():
 
 def test_shipped_afn_is_within_lee24_budget(capsys):
     """The graph count equals the torch modules' count (tests/test_afn_model.py: 6939 multiply-
-    adds per pixel), so the custom ops' shape rules carried the sizes to the refinement."""
+    adds per pixel for the head-alpha default), so the custom ops' shape rules carried the sizes
+    to the refinement. demo:afn has Lee24's fusion network (Fig. 2c): its alpha channel leaves
+    the head (16 fewer) and two 3 x 3 convs 16 -> 8 -> 1 join; Lee24 counts that CNN in
+    "filtering & fusion" (1.64 ms), not in the kernel prediction the 14 GFLOP budget times."""
     costs = flops.conv_costs(MODELS_DIR / "afn.onnx", 720, 1280)
     macs = sum(c.macs for c in costs)
-    assert macs == 6939 * 1280 * 720  # the zero channels padded for NCHWc not counted
-    assert 2 * macs / 1e9 <= LEE24_BUDGET_GFLOP
+    fusion = 9 * (16 * 8 + 8 * 1)
+    assert macs == (6939 - 16 + fusion) * 1280 * 720  # the NCHWc zero padding not counted
+    assert 2 * (macs - fusion * 1280 * 720) / 1e9 <= LEE24_BUDGET_GFLOP
     flops.main(["demo:afn", "--size", "1280x720", "--json"])
     (result,) = json.loads(capsys.readouterr().out)
     assert result["gflop"] == pytest.approx(2 * macs / 1e9) and result["convs"] == len(costs)
