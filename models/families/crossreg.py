@@ -17,7 +17,16 @@
 7. output = max(expm1(f), 0).
 
 The forward pass of step 4 is the one displayed and the one back-propagated (it uses
-theta_{t-1}); no gradient crosses frames. The state carries the history (log output and both
+theta_{t-1}); no gradient crosses frames.
+
+Pretraining (an option beyond the paper, which starts from the random init): `denoise-train
+--family crossreg` trains the initial theta offline, supervised, with the online update frozen
+(`training_state`: freeze = 1 on every frame of the outer loop's clips), so theta is the U-Net's
+parameters on every frame and the family default loss (SMAPE + temporal_weight x temporal
+SMAPE against the reference) reaches them through each frame's output and, via the carried
+history (kept attached in that mode only), through the temporal blend. The checkpoint holds the
+trained U-Net; a reset without `keep` (every first frame) takes theta from it, so its export
+runs the same online-learning graph from the pretrained init. The state carries the history (log output and both
 pilots), the geometry (normal, depth) and the learning: theta, Adam's m and v, the step count t,
 the frame's loss (output only) and two host-set controls, read even when reset = 1: `freeze`
 (1 skips this frame's update) and `keep` (1: a reset keeps theta, m, v and t). Reset (first
@@ -241,11 +250,12 @@ class CrossReg(DenoiserModel):
         """torch.export cannot trace autograd.grad: trace the whole step with make_fx first."""
         return traced_step(contract_module, example_args)
 
-    def loss(self, outputs, reference, temporal_weight):
-        raise NotImplementedError(
-            "crossreg learns online from its two half-buffers while it runs (Choi24); it has "
-            "no supervised training: export its random initialisation (denoise-export)"
-        )
+    def training_state(self, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Offline pretraining of the initial theta (`denoise-train --family crossreg`): every
+        clip of the outer loop runs with `freeze` = 1, so theta is the module's parameters on
+        every frame (the graph kept: see `_frame`) and the supervised loss (the default,
+        SMAPE + temporal SMAPE) reaches them through each frame's output."""
+        return {**state, "freeze": torch.ones_like(state["freeze"])}
 
     # -- one frame --------------------------------------------------------------------------
 
@@ -308,7 +318,12 @@ class CrossReg(DenoiserModel):
         # (`keep`, a host control: a camera cut restarts the history, not the learning).
         relearn = fresh & (state["keep"].reshape(-1)[:1] < 0.5)
         theta = torch.where(relearn, self.layout.flatten(self.unet), state["theta"].reshape(-1))
-        attached = theta.requires_grad  # to the module's parameters (outer training only)
+        # Attached to the module's parameters: the outer (offline) training only, under grad
+        # mode. Then theta_t keeps its graph through the Adam gate: frozen (`training_state`),
+        # theta is the parameters on every frame of the clip; the history keeps its graph too.
+        attached = theta.requires_grad
+        # frozen outer training: no online gradient to take (the gate would drop it)
+        skip_grad = attached and bool(state["freeze"].reshape(-1)[0] > 0.5)
         with torch.enable_grad():
             if not attached:
                 theta = theta.detach().requires_grad_(True)
@@ -334,13 +349,16 @@ class CrossReg(DenoiserModel):
 
             # 6. Self-supervised loss (eqs. (11)-(13)) and its gradient.
             loss = self.online_loss(hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, has_history)
-            with stage("backward"):
-                (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
+            if skip_grad:
+                grad = torch.zeros_like(theta).detach()
+            else:
+                with stage("backward"):
+                    (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
 
         with stage("adam"):
             learn = 1.0 - torch.clamp(state["freeze"].reshape(-1)[:1], 0.0, 1.0)
             theta_next, m, v, t = adam_step(
-                theta.detach(),
+                theta if attached else theta.detach(),
                 grad,
                 torch.where(relearn, 0.0, state["adam_m"].reshape(-1)),
                 torch.where(relearn, 0.0, state["adam_v"].reshape(-1)),
@@ -355,8 +373,9 @@ class CrossReg(DenoiserModel):
             output = output.detach()
         as_state = {"theta": theta_next, "adam_m": m, "adam_v": v, "adam_t": t}
         next_state = {k: x.reshape(1, -1, 1, 1) for k, x in as_state.items()}
+        history = torch.cat((hat, pilot_a, pilot_b), dim=1)
         next_state.update(
-            history=torch.cat((hat, pilot_a, pilot_b), dim=1).detach(),
+            history=history if attached else history.detach(),
             geometry=torch.cat((normal, depth), dim=1),
             loss=loss.detach().reshape(1, 1, 1, 1),
             freeze=state["freeze"],
