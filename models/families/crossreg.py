@@ -17,7 +17,13 @@
 7. output = max(expm1(f), 0).
 
 The forward pass of step 4 is the one displayed and the one back-propagated (it uses
-theta_{t-1}); no gradient crosses frames.
+theta_{t-1}); no gradient crosses frames. The state carries the history (log output and both
+pilots), the geometry (normal, depth) and the learning: theta, Adam's m and v, the step count t,
+the frame's loss (output only) and two host-set controls, read even when reset = 1: `freeze`
+(1 skips this frame's update) and `keep` (1: a reset keeps theta, m, v and t). Reset (first
+frame, camera cut) restarts the history; without `keep` (a zero state, as a host that knows
+nothing of it leaves it) also the learning, from theta at initialisation (the module's
+parameters: Glorot-uniform, seeded, or pretrained), m = v = t = 0.
 
 Pretraining (an option beyond the paper, which starts from the random init): `denoise-train
 --family crossreg` trains the initial theta offline, supervised, with the online update frozen
@@ -26,13 +32,7 @@ parameters on every frame and the family default loss (SMAPE + temporal_weight x
 SMAPE against the reference) reaches them through each frame's output and, via the carried
 history (kept attached in that mode only), through the temporal blend. The checkpoint holds the
 trained U-Net; a reset without `keep` (every first frame) takes theta from it, so its export
-runs the same online-learning graph from the pretrained init. The state carries the history (log output and both
-pilots), the geometry (normal, depth) and the learning: theta, Adam's m and v, the step count t,
-the frame's loss (output only) and two host-set controls, read even when reset = 1: `freeze`
-(1 skips this frame's update) and `keep` (1: a reset keeps theta, m, v and t). Reset (first
-frame, camera cut) restarts the history; without `keep` (a zero state, as a host that knows
-nothing of it leaves it) also the learning, from theta at initialisation (the module's
-parameters: Glorot-uniform, seeded), m = v = t = 0.
+runs the same online-learning graph from the pretrained init.
 
 Choices (all in `CrossRegConfig`, stored in checkpoints), from the official code
 (CGLab-GIST/cross-denoiser) where the paper's text is loose:
