@@ -59,8 +59,10 @@ Choices (all in `CrossRegConfig`, stored in checkpoints), from the official code
   edge); the official code masks emissive and environment pixels out instead, which the
   contract's buffers cannot tell;
 - reprojection: SVGF thresholds 10 (depth) and 4 (normal) over screen-space derivatives computed
-  from the depth and normal buffers, 3x3 fallback, 3x3 erosion; the code's temporal screening
-  (7x7 min/max overlap test) and emissive/environment mask are left out;
+  from the depth and normal buffers, 3x3 fallback, 3x3 erosion (of the mask of both the blend
+  and the labels); the code's emissive/environment mask is left out, and its temporal screening
+  (7x7 min/max overlap test) is an option off by default (`temporal_screening` = 7 screens
+  the loss's temporal labels);
 - H and W must be multiples of 2 ** (len(widths) - 1) (the max-pools).
 """
 
@@ -111,6 +113,10 @@ class CrossRegConfig(FamilyConfig):
     normal_threshold: float = 4.0
     reprojection_fallback: bool = True
     pilot_range_clamp: bool = True  # pilots <= max of both inputs over the regression window
+    # temporal screening of the loss's labels (official code, off in the paper's text): a warped
+    # previous pilot is a label only where its k x k min / max range overlaps the current
+    # pilots' (every channel); 0 = off, else the odd window k (the code's 7)
+    temporal_screening: int = 0
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -123,6 +129,9 @@ class CrossRegConfig(FamilyConfig):
             raise self.fail(f"filter_window must be odd >= 3, got {self.filter_window}")
         if len(self.widths) < 2 or any(x < 1 for x in self.widths):
             raise self.fail(f"widths must list >= 2 positive sizes, got {self.widths}")
+        k = self.temporal_screening
+        if k != 0 and (k < 3 or k % 2 == 0):
+            raise self.fail(f"temporal_screening must be 0 or odd >= 3, got {k}")
         if self.temporal_pairing not in ("cross", "same"):
             raise self.fail(
                 f"temporal_pairing must be 'cross' or 'same', got {self.temporal_pairing!r}"
@@ -131,6 +140,27 @@ class CrossRegConfig(FamilyConfig):
             raise self.fail(
                 f"needs lr > 0 and betas in [0, 1), got {self.lr}, {self.beta1}, {self.beta2}"
             )
+
+
+def screened(
+    pilot_a: torch.Tensor,
+    pilot_b: torch.Tensor,
+    prev_a: torch.Tensor,
+    prev_b: torch.Tensor,
+    window: int,
+) -> torch.Tensor:
+    """(N, 1, H, W) bool: the warped previous pilots' window x window range (min / max over both
+    buffers) overlaps the current pilots' in every channel (the official code's temporal
+    screening of the labels)."""
+    r = window // 2
+
+    def span(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        lo = -F.max_pool2d(-torch.minimum(a, b), window, 1, r)
+        return lo, F.max_pool2d(torch.maximum(a, b), window, 1, r)
+
+    (cur_lo, cur_hi), (prev_lo, prev_hi) = span(pilot_a, pilot_b), span(prev_a, prev_b)
+    overlap = (prev_hi >= cur_lo) & (prev_lo <= cur_hi)
+    return overlap.all(dim=1, keepdim=True)
 
 
 class UNet(nn.Module):
@@ -313,6 +343,9 @@ class CrossReg(DenoiserModel):
         has_history = valid > 0.5
         prev_out = torch.where(has_history, warped[:, :3], 0.5 * (pilot_a + pilot_b))
         prev_a, prev_b = warped[:, 3:6], warped[:, 6:9]
+        labelled = has_history  # where the warped previous pilots are the temporal labels
+        if cfg.temporal_screening:
+            labelled = labelled & screened(pilot_a, pilot_b, prev_a, prev_b, cfg.temporal_screening)
 
         # theta_{t-1}: the state, or the initialisation after a reset that does not keep it
         # (`keep`, a host control: a camera cut restarts the history, not the learning).
@@ -348,7 +381,7 @@ class CrossReg(DenoiserModel):
             hat = alpha * both + (1 - alpha) * prev_out
 
             # 6. Self-supervised loss (eqs. (11)-(13)) and its gradient.
-            loss = self.online_loss(hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, has_history)
+            loss = self.online_loss(hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, labelled)
             if skip_grad:
                 grad = torch.zeros_like(theta).detach()
             else:
