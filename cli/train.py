@@ -204,7 +204,8 @@ def train_command(
         Loss,
         typer.Option(
             help="paper: the family's own loss (SMAPE + temporal SMAPE for afn / wskp, Isik21 "
-            "eq. 9 for affinity, Meng20's gamma L1 for nbg); smape: SMAPE + temporal SMAPE for "
+            "eq. 9 for affinity, Meng20's gamma L1 for nbg; crossreg, pretrained offline with "
+            "its online update frozen: SMAPE + temporal SMAPE); smape: SMAPE + temporal SMAPE for "
             "any family; l1-ms-ssim: Open Image Denoise's 0.16 L1 + 0.84 (1 - MS-SSIM) on a "
             "PU-like curve of the auto-exposed colours, + --temporal-weight x the L1 of frame "
             "differences."
@@ -272,7 +273,8 @@ def train_command(
             help="Settings to start from: default (the options' defaults, how the demos were "
             "trained); paper (the family's own paper recipe: its loss, learning rate and "
             "schedule, batch, crop and augmentation; Fan21's input clip and SMAPE eps for wskp; "
-            "not crossreg, which learns online); oidn (Open Image Denoise's: l1-ms-ssim, "
+            "not crossreg, which learns online: the default recipe pretrains its initial theta "
+            "with the online update frozen); oidn (Open Image Denoise's: l1-ms-ssim, "
             "onecycle, rotations, channel permutation, auto exposure, batch 16). Options given "
             "explicitly override the recipe's; the checkpoint meta records it."
         ),

@@ -155,6 +155,12 @@ class DenoiserModel(nn.Module):
             for s in self.state_specs
         }
 
+    def training_state(self, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The zero state `state` (from `initial_state`) as the outer, offline training unroll
+        (`models.frame_loop.unroll`) starts a clip from. Default: unchanged. A family with host
+        controls in its state sets them here (crossreg: `freeze` = 1, the online update off)."""
+        return state
+
     def config(self) -> dict:
         """The JSON-able constructor arguments (stored in checkpoints and ONNX metadata)."""
         return self.cfg.to_dict()

@@ -42,8 +42,9 @@ class FrameLoop:
     are read, and moved to the model's device. Gradients flow unless the caller disables them.
     """
 
-    def __init__(self, model: DenoiserModel) -> None:
+    def __init__(self, model: DenoiserModel, outer: bool = False) -> None:
         self.model = model
+        self.outer = outer  # the outer training's unroll: zero states via `training_state`
         self.device = model_device(model)
         self.state: dict[str, torch.Tensor] | None = None
         self._key: tuple | None = None
@@ -71,6 +72,8 @@ class FrameLoop:
         if reset or self.state is None or key != self._key:
             hp, wp = -(-h // m) * m, -(-w // m) * m
             self.state = self.model.initial_state(n, hp, wp, device=device)
+            if self.outer:
+                self.state = self.model.training_state(self.state)
             self._key, reset = key, True
         padded = {k: pad_to_multiple(v, m) for k, v in buffers.items()}
         flag = torch.tensor(1.0 if reset else 0.0, device=device)
@@ -85,9 +88,10 @@ class FrameLoop:
 
 
 def unroll(model: DenoiserModel, clips: Mapping[str, torch.Tensor]) -> torch.Tensor:
-    """Run `model` over clips (B, T, C, H, W) from a fresh history; returns (B, T, 3, H, W)."""
+    """Run `model` over clips (B, T, C, H, W) from a fresh history; returns (B, T, 3, H, W).
+    The training unroll: each clip starts from `model.training_state` of the zero state."""
     t = next(iter(clips.values())).shape[1]
-    loop = FrameLoop(model)
+    loop = FrameLoop(model, outer=True)
     return torch.stack(
         list(loop.run({name: clip[:, i] for name, clip in clips.items()} for i in range(t))),
         dim=1,

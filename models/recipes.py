@@ -104,7 +104,8 @@ def recipe_settings(name: str, family: str) -> tuple[dict, dict]:
     if family not in _PAPER:
         known = ", ".join(sorted(_PAPER))
         why = (
-            "Choi24 trains online only, while it runs (there is no offline recipe to follow)"
+            "Choi24 trains online only, while it runs (there is no offline recipe to follow; "
+            "the default recipe pretrains its initial theta, the online update frozen)"
             if family == "crossreg"
             else "no paper recipe is recorded for it"
         )

@@ -261,3 +261,24 @@ def test_ort_tracks_the_pytorch_loop_over_20_frames():
         theta = denoiser.state_value("theta").ravel()
         assert np.abs(theta - thetas[i].numpy()).max() < 1e-4, i
     assert float(denoiser.state_value("adam_t").ravel()[0]) == 20.0
+
+
+def test_temporal_screening_drops_labels_outside_the_current_range():
+    from rtdenoise.models.families.crossreg import screened
+
+    gen = torch.Generator().manual_seed(0)
+    pa, pb = torch.rand(1, 3, 16, 16, generator=gen), torch.rand(1, 3, 16, 16, generator=gen)
+    far = pa.clone()
+    far[..., 4:8, 4:8] += 10.0  # a block the current pilots' 7x7 range cannot reach
+    assert bool(screened(pa, pb, pa, pb, 7).all())
+    mask = screened(pa, pb, far, pb + 10.0, 3)[0, 0]
+    assert not bool(mask[5, 5]) and bool(mask[12, 12])
+    model = build_model("crossreg", {**SMALL, "temporal_screening": 7})
+    frames = _frames(2)
+    with torch.no_grad():
+        loop = FrameLoop(model)
+        for frame in frames:
+            out = loop(frame)
+    assert torch.isfinite(out).all()
+    with pytest.raises(ValueError, match="temporal_screening"):
+        build_model("crossreg", {**SMALL, "temporal_screening": 4})

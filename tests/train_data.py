@@ -12,11 +12,14 @@ INPUTS = ("color", "albedo", "normal", "depth", "motion")
 TINY = {"widths": [8, 12], "kernel_size": 5, "refine_width": 8}
 
 
-def write_sequence(folder: Path, frames: int = 6, size: int = 32, seed: int = 0) -> Path:
+def write_sequence(
+    folder: Path, frames: int = 6, size: int = 32, seed: int = 0, color_b: bool = False
+) -> Path:
     """A faceted, textured wall panning 1 px per frame (previous = current + (1, 0)).
 
     Shading follows the facet normals, so a denoiser that learns to use the normal
     feature beats the blur an untrained one does; noise is 1-spp-like (exponential).
+    `color_b`: also a second, independent estimate (colorB, crossreg's input).
     """
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
@@ -30,6 +33,9 @@ def write_sequence(folder: Path, frames: int = 6, size: int = 32, seed: int = 0)
         ref = albedo * (0.05 + 2.0 * np.maximum(0.0, np.tensordot(light, normal, 1)))
         noisy = ref * rng.exponential(1.0, size=(3, size, size)).astype(np.float32)
         ch = {c: noisy[i] for i, c in enumerate("RGB")}
+        if color_b:
+            noisy_b = ref * rng.exponential(1.0, size=(3, size, size)).astype(np.float32)
+            ch.update({f"colorB.{c}": noisy_b[i] for i, c in enumerate("RGB")})
         ch.update({f"albedo.{c}": albedo for c in "RGB"})
         ch.update({f"normal.{c}": normal[i] for i, c in enumerate("XYZ")})
         ch["depth.Z"] = np.full_like(xs, 3.0)

@@ -23,7 +23,16 @@ the frame's loss (output only) and two host-set controls, read even when reset =
 (1 skips this frame's update) and `keep` (1: a reset keeps theta, m, v and t). Reset (first
 frame, camera cut) restarts the history; without `keep` (a zero state, as a host that knows
 nothing of it leaves it) also the learning, from theta at initialisation (the module's
-parameters: Glorot-uniform, seeded), m = v = t = 0.
+parameters: Glorot-uniform, seeded, or pretrained), m = v = t = 0.
+
+Pretraining (an option beyond the paper, which starts from the random init): `denoise-train
+--family crossreg` trains the initial theta offline, supervised, with the online update frozen
+(`training_state`: freeze = 1 on every frame of the outer loop's clips), so theta is the U-Net's
+parameters on every frame and the family default loss (SMAPE + temporal_weight x temporal
+SMAPE against the reference) reaches them through each frame's output and, via the carried
+history (kept attached in that mode only), through the temporal blend. The checkpoint holds the
+trained U-Net; a reset without `keep` (every first frame) takes theta from it, so its export
+runs the same online-learning graph from the pretrained init.
 
 Choices (all in `CrossRegConfig`, stored in checkpoints), from the official code
 (CGLab-GIST/cross-denoiser) where the paper's text is loose:
@@ -50,8 +59,10 @@ Choices (all in `CrossRegConfig`, stored in checkpoints), from the official code
   edge); the official code masks emissive and environment pixels out instead, which the
   contract's buffers cannot tell;
 - reprojection: SVGF thresholds 10 (depth) and 4 (normal) over screen-space derivatives computed
-  from the depth and normal buffers, 3x3 fallback, 3x3 erosion; the code's temporal screening
-  (7x7 min/max overlap test) and emissive/environment mask are left out;
+  from the depth and normal buffers, 3x3 fallback, 3x3 erosion (of the mask of both the blend
+  and the labels); the code's emissive/environment mask is left out, and its temporal screening
+  (7x7 min/max overlap test) is an option off by default (`temporal_screening` = 7 screens
+  the loss's temporal labels);
 - H and W must be multiples of 2 ** (len(widths) - 1) (the max-pools).
 """
 
@@ -102,6 +113,10 @@ class CrossRegConfig(FamilyConfig):
     normal_threshold: float = 4.0
     reprojection_fallback: bool = True
     pilot_range_clamp: bool = True  # pilots <= max of both inputs over the regression window
+    # temporal screening of the loss's labels (official code, off in the paper's text): a warped
+    # previous pilot is a label only where its k x k min / max range overlaps the current
+    # pilots' (every channel); 0 = off, else the odd window k (the code's 7)
+    temporal_screening: int = 0
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -114,6 +129,9 @@ class CrossRegConfig(FamilyConfig):
             raise self.fail(f"filter_window must be odd >= 3, got {self.filter_window}")
         if len(self.widths) < 2 or any(x < 1 for x in self.widths):
             raise self.fail(f"widths must list >= 2 positive sizes, got {self.widths}")
+        k = self.temporal_screening
+        if k != 0 and (k < 3 or k % 2 == 0):
+            raise self.fail(f"temporal_screening must be 0 or odd >= 3, got {k}")
         if self.temporal_pairing not in ("cross", "same"):
             raise self.fail(
                 f"temporal_pairing must be 'cross' or 'same', got {self.temporal_pairing!r}"
@@ -122,6 +140,27 @@ class CrossRegConfig(FamilyConfig):
             raise self.fail(
                 f"needs lr > 0 and betas in [0, 1), got {self.lr}, {self.beta1}, {self.beta2}"
             )
+
+
+def screened(
+    pilot_a: torch.Tensor,
+    pilot_b: torch.Tensor,
+    prev_a: torch.Tensor,
+    prev_b: torch.Tensor,
+    window: int,
+) -> torch.Tensor:
+    """(N, 1, H, W) bool: the warped previous pilots' window x window range (min / max over both
+    buffers) overlaps the current pilots' in every channel (the official code's temporal
+    screening of the labels)."""
+    r = window // 2
+
+    def span(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        lo = -F.max_pool2d(-torch.minimum(a, b), window, 1, r)
+        return lo, F.max_pool2d(torch.maximum(a, b), window, 1, r)
+
+    (cur_lo, cur_hi), (prev_lo, prev_hi) = span(pilot_a, pilot_b), span(prev_a, prev_b)
+    overlap = (prev_hi >= cur_lo) & (prev_lo <= cur_hi)
+    return overlap.all(dim=1, keepdim=True)
 
 
 class UNet(nn.Module):
@@ -241,11 +280,12 @@ class CrossReg(DenoiserModel):
         """torch.export cannot trace autograd.grad: trace the whole step with make_fx first."""
         return traced_step(contract_module, example_args)
 
-    def loss(self, outputs, reference, temporal_weight):
-        raise NotImplementedError(
-            "crossreg learns online from its two half-buffers while it runs (Choi24); it has "
-            "no supervised training: export its random initialisation (denoise-export)"
-        )
+    def training_state(self, state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Offline pretraining of the initial theta (`denoise-train --family crossreg`): every
+        clip of the outer loop runs with `freeze` = 1, so theta is the module's parameters on
+        every frame (the graph kept: see `_frame`) and the supervised loss (the default,
+        SMAPE + temporal SMAPE) reaches them through each frame's output."""
+        return {**state, "freeze": torch.ones_like(state["freeze"])}
 
     # -- one frame --------------------------------------------------------------------------
 
@@ -303,12 +343,20 @@ class CrossReg(DenoiserModel):
         has_history = valid > 0.5
         prev_out = torch.where(has_history, warped[:, :3], 0.5 * (pilot_a + pilot_b))
         prev_a, prev_b = warped[:, 3:6], warped[:, 6:9]
+        labelled = has_history  # where the warped previous pilots are the temporal labels
+        if cfg.temporal_screening:
+            labelled = labelled & screened(pilot_a, pilot_b, prev_a, prev_b, cfg.temporal_screening)
 
         # theta_{t-1}: the state, or the initialisation after a reset that does not keep it
         # (`keep`, a host control: a camera cut restarts the history, not the learning).
         relearn = fresh & (state["keep"].reshape(-1)[:1] < 0.5)
         theta = torch.where(relearn, self.layout.flatten(self.unet), state["theta"].reshape(-1))
-        attached = theta.requires_grad  # to the module's parameters (outer training only)
+        # Attached to the module's parameters: the outer (offline) training only, under grad
+        # mode. Then theta_t keeps its graph through the Adam gate: frozen (`training_state`),
+        # theta is the parameters on every frame of the clip; the history keeps its graph too.
+        attached = theta.requires_grad
+        # frozen outer training: no online gradient to take (the gate would drop it)
+        skip_grad = attached and bool(state["freeze"].reshape(-1)[0] > 0.5)
         with torch.enable_grad():
             if not attached:
                 theta = theta.detach().requires_grad_(True)
@@ -333,14 +381,17 @@ class CrossReg(DenoiserModel):
             hat = alpha * both + (1 - alpha) * prev_out
 
             # 6. Self-supervised loss (eqs. (11)-(13)) and its gradient.
-            loss = self.online_loss(hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, has_history)
-            with stage("backward"):
-                (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
+            loss = self.online_loss(hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, labelled)
+            if skip_grad:
+                grad = torch.zeros_like(theta).detach()
+            else:
+                with stage("backward"):
+                    (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
 
         with stage("adam"):
             learn = 1.0 - torch.clamp(state["freeze"].reshape(-1)[:1], 0.0, 1.0)
             theta_next, m, v, t = adam_step(
-                theta.detach(),
+                theta if attached else theta.detach(),
                 grad,
                 torch.where(relearn, 0.0, state["adam_m"].reshape(-1)),
                 torch.where(relearn, 0.0, state["adam_v"].reshape(-1)),
@@ -355,8 +406,9 @@ class CrossReg(DenoiserModel):
             output = output.detach()
         as_state = {"theta": theta_next, "adam_m": m, "adam_v": v, "adam_t": t}
         next_state = {k: x.reshape(1, -1, 1, 1) for k, x in as_state.items()}
+        history = torch.cat((hat, pilot_a, pilot_b), dim=1)
         next_state.update(
-            history=torch.cat((hat, pilot_a, pilot_b), dim=1).detach(),
+            history=history if attached else history.detach(),
             geometry=torch.cat((normal, depth), dim=1),
             loss=loss.detach().reshape(1, 1, 1, 1),
             freeze=state["freeze"],
