@@ -128,14 +128,19 @@ def test_unknown_family_and_bad_state_dict(tmp_path, model):
 
 
 @pytest.mark.parametrize("family", ["afn", "wskp", "nbg"])
-def test_shipped_checkpoints_load_with_the_bilinear_reprojection(family):
-    """The demos were saved before AccumulatingConfig.reprojection existed: they load as
-    "bilinear" (what they were trained with), and the field round-trips once set."""
+def test_checkpoints_without_the_reprojection_field_load_as_bilinear(family, tmp_path):
+    """Checkpoints saved before AccumulatingConfig.reprojection existed load as "bilinear"
+    (what they were trained with); the shipped demos load with the reprojection they record."""
     from pathlib import Path
 
     path = Path(rtdenoise.__file__).parent / "assets" / "models" / f"{family}.pt"
-    assert "reprojection" not in read_checkpoint(path)["config"]
+    shipped = read_checkpoint(path)
     loaded, _ = load_checkpoint(path)
+    assert loaded.cfg.reprojection == shipped["config"].get("reprojection", "bilinear")
+    old_config = {k: v for k, v in shipped["config"].items() if k != "reprojection"}
+    old = tmp_path / f"{family}_old.pt"
+    torch.save(dict(shipped, config=old_config), old)
+    loaded, _ = load_checkpoint(old)
     assert loaded.cfg.reprojection == "bilinear" and loaded.cfg.temporal().per_tap == 0
 
 
