@@ -159,6 +159,15 @@ def train_command(
     resume: Annotated[
         Path | None, typer.Option(help="Continue from this training checkpoint.")
     ] = None,
+    init_from: Annotated[
+        str | None,
+        typer.Option(
+            metavar="CHECKPOINT",
+            help="Fine-tune: start a new run from this checkpoint's weights (a .pt file or "
+            "demo:<family>); --config changes its config where the weights keep their shapes "
+            "(e.g. Isik21's deployment step: --config '{\"leaky_slope\": 0}').",
+        ),
+    ] = None,
     val: Annotated[
         list[Path] | None,
         typer.Option(help="Validation sequence folder (repeatable): PSNR at the end."),
@@ -295,12 +304,15 @@ def train_command(
     --temporal-weight x temporal SMAPE (Isik21 eq. 12)) with Adam under --schedule. The
     checkpoint {family, config, state_dict, meta} is written atomically every --save-every
     steps and at the end; its meta holds this command line and every setting; --resume
-    continues a run exactly (optimizer, schedule and RNG states). Needs the train extra
-    (torch).
+    continues a run exactly (optimizer, schedule and RNG states); --init-from starts a new
+    run from a checkpoint's weights (fine-tuning a shipped demo on your own frames:
+    --init-from demo:wskp). Needs the train extra (torch).
 
     OIDN-like recipe: --loss l1-ms-ssim --schedule onecycle --rotations --permute-channels
     --crop 256 --batch 16 --cache DIR --workers 8.
     """
+    if resume is not None and init_from is not None:
+        fail("--resume continues a run, --init-from starts a new one from weights: give one")
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
     sample_counts = _parse_counts(samples) if samples else ()
@@ -309,6 +321,8 @@ def train_command(
     with user_errors(extra="train"):
         from rtdenoise.models.recipes import recipe_settings
         from rtdenoise.models.train import TrainSettings, train
+
+        from .export import resolve_checkpoint
 
         load_family_modules(family_module)
         try:
@@ -357,6 +371,7 @@ def train_command(
             model_config=model_config,
             settings=settings,
             resume=resume,
+            init_from=resolve_checkpoint(init_from) if init_from is not None else None,
             val_dirs=val or [],
             progress=progress,
             command=shlex.join(["denoise-train", *sys.argv[1:]]),

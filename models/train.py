@@ -31,7 +31,7 @@ from rtdenoise.runtime.sequences.metrics import psnr
 from rtdenoise.runtime.sequences.samples import sample_features_of
 
 from .base import DenoiserModel
-from .checkpoint import CheckpointError, load_training_state, save_checkpoint
+from .checkpoint import CheckpointError, load_checkpoint, load_training_state, save_checkpoint
 from .data import ClipSampler, SequenceData, load_sequences
 from .device import torch_device
 from .frame_loop import FrameLoop, unroll
@@ -162,6 +162,32 @@ def _settings_meta(s: TrainSettings) -> dict:
     }
 
 
+def initial_weights(
+    path: str | os.PathLike, family: str, model_config: dict | None = None
+) -> DenoiserModel:
+    """A `family` model with the weights of checkpoint `path` and its config updated by
+    `model_config`: the start of a fine-tuning run. Refuses another family or weights whose
+    names or shapes the new config changes, naming them."""
+    source, _meta = load_checkpoint(path)
+    if source.family != family:
+        raise CheckpointError(
+            f"{path}: checkpoint family {source.family!r} differs from --family {family!r}"
+        )
+    model = build_model(family, {**source.config(), **(model_config or {})})
+    theirs, ours = source.state_dict(), model.state_dict()
+    changed = sorted(
+        k for k in theirs.keys() | ours.keys()
+        if k not in theirs or k not in ours or theirs[k].shape != ours[k].shape
+    )  # fmt: skip
+    if changed:
+        raise CheckpointError(
+            f"{path}: the config changes the weights {', '.join(changed[:6])}"
+            f"{' ...' if len(changed) > 6 else ''}; fine-tuning keeps every weight's shape"
+        )
+    model.load_state_dict(theirs)
+    return model
+
+
 def train(
     data_dirs: Sequence[str | os.PathLike],
     output: str | os.PathLike,
@@ -170,6 +196,7 @@ def train(
     model_config: dict | None = None,
     settings: TrainSettings | None = None,
     resume: str | os.PathLike | None = None,
+    init_from: str | os.PathLike | None = None,
     val_dirs: Sequence[str | os.PathLike] = (),
     progress: bool = True,
     log: Callable[[str], None] = print,
@@ -179,7 +206,9 @@ def train(
 
     With `resume`, the model, optimizer, scheduler, step and RNG states come from that
     checkpoint (its family / config win over `family` / `model_config`) and training continues
-    up to `settings.steps` (or `settings.stop_at`: a long schedule run in pieces). `progress`:
+    up to `settings.steps` (or `settings.stop_at`: a long schedule run in pieces). With
+    `init_from` (fine-tuning), a new run starts from that checkpoint's weights, its config
+    updated by `model_config` (e.g. Isik21 §5.4: `{"leaky_slope": 0}`). `progress`:
     a rich bar where stderr is a terminal, else (and without it) a line per logging window with
     the ETA. `command`: the command line recorded in the meta (default: this process's argv).
     Returns the per-step losses of this call and validation metrics.
@@ -199,6 +228,8 @@ def train(
             raise CheckpointError(
                 f"{resume}: checkpoint family {model.family!r} differs from --family {family!r}"
             )
+    elif init_from is not None:
+        model = initial_weights(init_from, family, model_config)
     else:
         model = build_model(family, model_config)
     model.to(device).train()
@@ -267,6 +298,9 @@ def train(
             "commands": commands,
             "torch": str(torch.__version__),
             "resumed_from": str(resume) if resume is not None else meta_in.get("resumed_from"),
+            "initialised_from": (
+                str(init_from) if init_from is not None else meta_in.get("initialised_from")
+            ),
         }
         if validation is not None:
             meta["validation"] = validation

@@ -246,3 +246,53 @@ def test_non_finite_loss_stops_training(seq_dir, tmp_path, monkeypatch):
             [seq_dir], tmp_path / "n.pt", model_config=TINY, settings=_settings(2), progress=False
         )
     assert not (tmp_path / "n.pt").exists()
+
+
+def test_init_from_starts_a_new_run_from_a_checkpoints_weights(seq_dir, tmp_path):
+    """Fine-tuning: the weights come from the checkpoint, the config from it updated by
+    --config where the shapes stay; another family or changed shapes are refused by name."""
+    from rtdenoise.models.checkpoint import CheckpointError
+
+    source = train([seq_dir], tmp_path / "a.pt", model_config=TINY, settings=_settings(2))
+    src_model, _ = load_checkpoint(source.checkpoint)
+    tuned = train(
+        [seq_dir], tmp_path / "b.pt", init_from=source.checkpoint,
+        model_config={"reprojection": "per_tap"}, settings=_settings(1, lr=0.0),
+    )  # fmt: skip
+    model, meta = load_checkpoint(tuned.checkpoint)
+    assert model.config() == {**src_model.config(), "reprojection": "per_tap"}
+    for name, w in src_model.state_dict().items():
+        assert torch.equal(model.state_dict()[name], w), name  # lr 0: the source's weights
+    assert meta["initialised_from"] == str(source.checkpoint) and meta["step"] == 1
+    with pytest.raises(CheckpointError, match=r"a\.pt: the config changes the weights .*"):
+        train([seq_dir], tmp_path / "c.pt", init_from=source.checkpoint,
+              model_config={"widths": [8, 16]}, settings=_settings(1))  # fmt: skip
+    with pytest.raises(CheckpointError, match="family 'afn' differs from --family 'wskp'"):
+        train([seq_dir], tmp_path / "c.pt", family="wskp", init_from=source.checkpoint,
+              settings=_settings(1))  # fmt: skip
+    assert not (tmp_path / "c.pt").exists()
+
+
+def test_cli_init_from_a_demo_with_isik21_deployment_relu(seq_dir, tmp_path):
+    """Isik21 §5.4's deployment step: demo:affinity's weights with ReLU for leaky ReLU."""
+    runner = CliRunner()
+    out = tmp_path / "relu.pt"
+    args = [str(seq_dir), "-o", str(out), "--family", "affinity", "--steps", "1",
+            "--crop", "16", "--frames", "2", "--batch", "1", "--lr", "0", "--threads", "1",
+            "--no-progress", "--init-from", "demo:affinity",
+            "--config", '{"leaky_slope": 0}']  # fmt: skip
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    demo, _ = load_checkpoint(Path(rtdenoise_models()) / "affinity.pt")
+    model, meta = load_checkpoint(out)
+    assert model.config() == {**demo.config(), "leaky_slope": 0}
+    assert all(torch.equal(model.state_dict()[k], v) for k, v in demo.state_dict().items())
+    assert meta["initialised_from"].endswith("affinity.pt")
+    both = runner.invoke(app, [*args, "--resume", str(out)])
+    assert both.exit_code == 2 and "--init-from" in both.output
+
+
+def rtdenoise_models() -> Path:
+    import rtdenoise
+
+    return Path(rtdenoise.__file__).parent / "assets" / "models"
