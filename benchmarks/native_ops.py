@@ -116,7 +116,7 @@ import json, sys, time
 t0 = time.perf_counter()
 from rtdenoise.runtime import Denoiser
 from rtdenoise.runtime.sequences.synthetic import synthetic_frames
-den = Denoiser(sys.argv[1], fast_kernels=sys.argv[2] if sys.argv[2] != "auto" else True)
+den = Denoiser(sys.argv[1], fast_kernels=sys.argv[2])
 frames = synthetic_frames(den.required_buffers, 4, int(sys.argv[3]), int(sys.argv[4]))
 t1 = time.perf_counter()
 times = []
@@ -137,7 +137,7 @@ def first_frames(model: str, h: int, w: int) -> list[str]:
     import sys
 
     rows = []
-    for path in ("native", "auto"):
+    for path in ("native", "native-cpp"):  # numba, then the C++ library (asked for by name)
         res = subprocess.run(
             [sys.executable, "-c", FIRST, model, path, str(h), str(w)],
             capture_output=True, text=True, check=True,

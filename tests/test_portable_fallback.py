@@ -34,10 +34,10 @@ FRAMES = 4  # of the committed sequence seq_000 (64x64), state carried from fram
     "missing, cpp", [("onnxruntime_extensions", "1"), ("numba", "1"), ("numba", "0")]
 )
 def test_denoise_run_without_a_kernel_library(tmp_path, missing, cpp):
-    """demo:nbg (BilateralGrid: on numba where numba is installed) through denoise-run, which
-    says on its timing line which path ran."""
+    """demo:affinity (its filters: on numba where numba is installed) through denoise-run,
+    which says on its timing line which path ran."""
     seq = sample_sequences()[0]
-    args = [str(seq / "frame_000[0-2].exr"), "-o", str(tmp_path), "--model", "demo:nbg"]
+    args = [str(seq / "frame_000[0-2].exr"), "-o", str(tmp_path), "--model", "demo:affinity"]
     proc = subprocess.run(
         [sys.executable, "-c", without(missing) + SCRIPT, missing, *args],
         capture_output=True,
