@@ -162,6 +162,13 @@ def _settings_meta(s: TrainSettings) -> dict:
     }
 
 
+def _check_family(model: DenoiserModel, family: str, path: str | os.PathLike) -> None:
+    if model.family != family:
+        raise CheckpointError(
+            f"{path}: checkpoint family {model.family!r} differs from --family {family!r}"
+        )
+
+
 def initial_weights(
     path: str | os.PathLike, family: str, model_config: dict | None = None
 ) -> DenoiserModel:
@@ -169,10 +176,7 @@ def initial_weights(
     `model_config`: the start of a fine-tuning run. Refuses another family or weights whose
     names or shapes the new config changes, naming them."""
     source, _meta = load_checkpoint(path)
-    if source.family != family:
-        raise CheckpointError(
-            f"{path}: checkpoint family {source.family!r} differs from --family {family!r}"
-        )
+    _check_family(source, family, path)
     model = build_model(family, {**source.config(), **(model_config or {})})
     theirs, ours = source.state_dict(), model.state_dict()
     changed = sorted(
@@ -224,10 +228,7 @@ def train(
     meta_in: dict = {}
     if resume is not None:
         model, meta_in, train_state = load_training_state(resume)
-        if model.family != family:
-            raise CheckpointError(
-                f"{resume}: checkpoint family {model.family!r} differs from --family {family!r}"
-            )
+        _check_family(model, family, resume)
     elif init_from is not None:
         model = initial_weights(init_from, family, model_config)
     else:

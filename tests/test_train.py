@@ -16,6 +16,7 @@ from rtdenoise.models.data import ClipSampler, load_sequence
 from rtdenoise.models.losses import sequence_loss, smape, temporal_smape
 from rtdenoise.models.registry import build_model
 from rtdenoise.models.train import TrainSettings, train, unroll
+from rtdenoise.shipped import demo_model
 
 
 @pytest.fixture(scope="module")
@@ -261,8 +262,9 @@ def test_init_from_starts_a_new_run_from_a_checkpoints_weights(seq_dir, tmp_path
     )  # fmt: skip
     model, meta = load_checkpoint(tuned.checkpoint)
     assert model.config() == {**src_model.config(), "reprojection": "per_tap"}
+    weights = model.state_dict()
     for name, w in src_model.state_dict().items():
-        assert torch.equal(model.state_dict()[name], w), name  # lr 0: the source's weights
+        assert torch.equal(weights[name], w), name  # lr 0: the source's weights
     assert meta["initialised_from"] == str(source.checkpoint) and meta["step"] == 1
     with pytest.raises(CheckpointError, match=r"a\.pt: the config changes the weights .*"):
         train([seq_dir], tmp_path / "c.pt", init_from=source.checkpoint,
@@ -283,16 +285,10 @@ def test_cli_init_from_a_demo_with_isik21_deployment_relu(seq_dir, tmp_path):
             "--config", '{"leaky_slope": 0}']  # fmt: skip
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
-    demo, _ = load_checkpoint(Path(rtdenoise_models()) / "affinity.pt")
+    demo, _ = load_checkpoint(demo_model("affinity", ".pt"))
     model, meta = load_checkpoint(out)
     assert model.config() == {**demo.config(), "leaky_slope": 0}
     assert all(torch.equal(model.state_dict()[k], v) for k, v in demo.state_dict().items())
     assert meta["initialised_from"].endswith("affinity.pt")
     both = runner.invoke(app, [*args, "--resume", str(out)])
     assert both.exit_code == 2 and "--init-from" in both.output
-
-
-def rtdenoise_models() -> Path:
-    import rtdenoise
-
-    return Path(rtdenoise.__file__).parent / "assets" / "models"
