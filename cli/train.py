@@ -180,6 +180,15 @@ def train_command(
             "differences).",
         ),
     ] = 0.25,
+    relmse_weight: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="Add this multiple of relMSE ((o - t)^2 / (t^2 + 0.01), the benchmarks' metric) "
+            "to --loss: unlike SMAPE it does not saturate, so a small bright light smeared into "
+            "dark neighbours costs what it costs in the metric (0: off).",
+        ),
+    ] = 0.0,
     brightness: Annotated[
         str, typer.Option(help="Random brightness range LOW,HIGH (1,1 disables).")
     ] = "0.8,1.2",
@@ -351,6 +360,7 @@ def train_command(
             sample_counts=sample_counts,
             device=device,
             loss=loss.value,
+            relmse_weight=relmse_weight,
             rotations=rotations,
             permute=permute_channels,
             exposure=exposure.value,

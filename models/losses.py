@@ -1,6 +1,6 @@
 """Training losses: SMAPE (Lee24 eq. (5)), temporal SMAPE (Isik21 eq. (12)) and Open Image
 Denoise's L1 + MS-SSIM on a perceptual transfer curve; `LOSSES` names the choices of
-`denoise-train --loss`.
+`denoise-train --loss`, and relMSE (`--relmse-weight`) may be added to any of them.
 """
 
 from __future__ import annotations
@@ -18,6 +18,11 @@ SMAPE_EPS = 1e-3  # Lee24 eq. (5): epsilon = 0.001
 MS_SSIM_WEIGHT = 0.84
 L1_WEIGHT = 1.0 - MS_SSIM_WEIGHT
 
+# Rousselle et al. 2011's relative MSE, with runtime.sequences.metrics' epsilon (the metric the
+# benchmarks report): unbounded where SMAPE saturates at 1, so a small bright light smeared into
+# its dark neighbours costs in training what it costs in the metric.
+RELMSE_EPS = 1e-2
+
 LossFn = Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor]
 
 
@@ -28,6 +33,11 @@ def smape(output: torch.Tensor, target: torch.Tensor, eps: float = SMAPE_EPS) ->
     first; the per-channel form is Lee24's and the one runtime/metrics reports).
     """
     return ((output - target).abs() / (output.abs() + target.abs() + eps)).mean()
+
+
+def relmse(output: torch.Tensor, target: torch.Tensor, eps: float = RELMSE_EPS) -> torch.Tensor:
+    """Mean over pixels and colour channels of (o - t)^2 / (t^2 + eps), on raw radiance."""
+    return ((output - target) ** 2 / (target**2 + eps)).mean()
 
 
 def temporal_smape(
@@ -89,22 +99,34 @@ LOSSES: dict[str, LossFn | None] = {
 }
 
 
-def training_loss(name: str, model: torch.nn.Module) -> LossFn:
+def training_loss(name: str, model: torch.nn.Module, relmse_weight: float = 0.0) -> LossFn:
     """The loss `denoise-train --loss name` minimises for `model`: (outputs, reference,
     temporal_weight) -> scalar. A replacement of the paper's loss keeps a family's
-    regulariser where the family exposes one as `model.regulariser()` (a scalar, or None)."""
+    regulariser where the family exposes one as `model.regulariser()` (a scalar, or None).
+    `relmse_weight` > 0 adds that multiple of relMSE (`relmse`) of the outputs to the loss."""
     if name not in LOSSES:
         raise ValueError(f"unknown loss {name!r}; choose one of {', '.join(LOSSES)}")
+    if relmse_weight < 0:
+        raise ValueError(f"relmse_weight must be >= 0, got {relmse_weight}")
     fn = LOSSES[name]
-    if fn is None:
-        return model.loss
     hook = getattr(model, "regulariser", None)
-    if not callable(hook):
-        return fn
+    if fn is None:
+        base = model.loss
+    elif not callable(hook):
+        base = fn
+    else:
 
-    def with_regulariser(outputs, reference, temporal_weight):
-        loss = fn(outputs, reference, temporal_weight)
-        reg = hook()
-        return loss if reg is None else loss + reg
+        def base(outputs, reference, temporal_weight):
+            loss = fn(outputs, reference, temporal_weight)
+            reg = hook()
+            return loss if reg is None else loss + reg
 
-    return with_regulariser
+    if not relmse_weight:
+        return base
+
+    def with_relmse(outputs, reference, temporal_weight):
+        return base(outputs, reference, temporal_weight) + relmse_weight * relmse(
+            outputs, reference
+        )
+
+    return with_relmse

@@ -140,3 +140,24 @@ def test_training_loss_names():
     o, r = torch.rand(1, 2, 3, 16, 16), torch.rand(1, 2, 3, 16, 16)
     fn = training_loss("smape", model)
     torch.testing.assert_close(fn(o, r, 0.25), sequence_loss(o, r, 0.25) + 0.5)
+
+
+def test_relmse_weight_adds_the_unsaturated_term():
+    """--relmse-weight adds w x mean((o - t)^2 / (t^2 + 0.01)) to any loss; a light smeared onto a
+    dark pixel costs far more there than in SMAPE, which saturates at 1."""
+    from rtdenoise.models.losses import relmse, smape
+
+    model = build_model("afn", TINY)
+    o, r = torch.rand(1, 2, 3, 16, 16), torch.rand(1, 2, 3, 16, 16)
+    expected = ((o - r) ** 2 / (r**2 + 1e-2)).mean()
+    torch.testing.assert_close(relmse(o, r), expected)
+    fn = training_loss("smape", model, relmse_weight=0.5)
+    torch.testing.assert_close(fn(o, r, 0.25), sequence_loss(o, r, 0.25) + 0.5 * expected)
+    assert training_loss("smape", model, relmse_weight=0.0) is sequence_loss
+    smeared = r.clone()
+    smeared[..., 0, 0] = 20.0
+    dark = r.clone()
+    dark[..., 0, 0] = 0.02
+    assert float(relmse(smeared, dark)) > 100 * float(smape(smeared, dark))
+    with pytest.raises(ValueError, match="relmse_weight"):
+        training_loss("smape", model, relmse_weight=-1.0)
