@@ -9,6 +9,11 @@ from collections.abc import Callable
 
 import torch
 
+# relMSE with the epsilon of the metric the benchmarks report: unbounded where SMAPE saturates
+# at 1, so a small bright light smeared into its dark neighbours costs in training what it costs
+# in the metric.
+from rtdenoise.runtime.sequences.metrics import RELMSE_EPS
+
 from .msssim import ms_ssim
 from .transfer import exposed_transfer
 
@@ -17,11 +22,6 @@ SMAPE_EPS = 1e-3  # Lee24 eq. (5): epsilon = 0.001
 # alpha = 0.84 on MS-SSIM, 1 - alpha on L1; the mix Open Image Denoise trains with.
 MS_SSIM_WEIGHT = 0.84
 L1_WEIGHT = 1.0 - MS_SSIM_WEIGHT
-
-# Rousselle et al. 2011's relative MSE, with runtime.sequences.metrics' epsilon (the metric the
-# benchmarks report): unbounded where SMAPE saturates at 1, so a small bright light smeared into
-# its dark neighbours costs in training what it costs in the metric.
-RELMSE_EPS = 1e-2
 
 LossFn = Callable[[torch.Tensor, torch.Tensor, float], torch.Tensor]
 

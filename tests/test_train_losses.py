@@ -10,7 +10,9 @@ import torch
 from rtdenoise.models.losses import (
     LOSSES,
     l1_ms_ssim_loss,
+    relmse,
     sequence_loss,
+    smape,
     training_loss,
 )
 from rtdenoise.models.msssim import MS_SSIM_WEIGHTS, ms_ssim, scales_for, ssim, window_for
@@ -145,8 +147,6 @@ def test_training_loss_names():
 def test_relmse_weight_adds_the_unsaturated_term():
     """--relmse-weight adds w x mean((o - t)^2 / (t^2 + 0.01)) to any loss; a light smeared onto a
     dark pixel costs far more there than in SMAPE, which saturates at 1."""
-    from rtdenoise.models.losses import relmse, smape
-
     model = build_model("afn", TINY)
     o, r = torch.rand(1, 2, 3, 16, 16), torch.rand(1, 2, 3, 16, 16)
     expected = ((o - r) ** 2 / (r**2 + 1e-2)).mean()
