@@ -48,6 +48,7 @@ def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple]:
     from rtdenoise.runtime.sequences.frames import (
         find_frames,
         frame_number,
+        group_shots,
         match_references,
         read_frame,
         read_reference,
@@ -55,8 +56,11 @@ def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple]:
     )
     from rtdenoise.shipped import sample_sequences
 
+    folders = folders or sample_sequences()
+    # named as denoise-run names shots: validation/seq_000 and sequences/seq_000 stay two
+    names = [name for name, _ in group_shots(folders)]
     out = []
-    for folder in folders or sample_sequences():
+    for name, folder in zip(names, folders, strict=True):
         paths = find_frames(folder)
         refs = match_references(paths)
         if not all(refs):
@@ -64,7 +68,7 @@ def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple]:
         frames = [read_frame(p, buffers=buffers).buffers for p in paths]
         cuts = shot_cuts(folder)
         starts = [i for i, p in enumerate(paths) if i and frame_number(p) in cuts]
-        out.append((Path(folder).name, frames, [read_reference(r) for r in refs], starts))
+        out.append((name, frames, [read_reference(r) for r in refs], starts))
     return out
 
 

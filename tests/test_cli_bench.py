@@ -149,3 +149,27 @@ def test_compare_eager_needs_a_checkpoint_and_a_usable_device(tmp_path):
     assert res.exit_code == 2 and "has no PyTorch checkpoint" in res.output
     res = runner.invoke(app, ["compare", "demo:wskp", "--device", "tpu:0", "--size", "8x8"])
     assert res.exit_code == 2 and "device 'tpu:0'" in res.output
+
+
+def test_compare_keeps_sequences_of_the_same_folder_name_apart(tmp_path):
+    """validation/seq_000 and sequences/seq_000 are two sequences, scored and reported apart
+    (named as denoise-run names shots), not one overwriting the other."""
+    import shutil
+
+    src = sample_sequences()[0]
+    for parent, keep in (("a", 2), ("b", 3)):
+        dst = tmp_path / parent / src.name
+        dst.mkdir(parents=True)
+        for i in range(keep):
+            for kind in ("frame", "ref"):
+                shutil.copy(src / f"{kind}_{i:04d}.exr", dst)
+    out = tmp_path / "c.json"
+    args = ["compare", "demo:wskp", "--oidn", "none", "--size", "8x8", "--repeats", "1"]
+    for parent in ("a", "b"):
+        args += ["--sequence", str(tmp_path / parent / src.name)]
+    res = runner.invoke(app, args + ["--json", str(out)])
+    assert res.exit_code == 0, res.output
+    data = json.loads(out.read_text())
+    assert set(data["noisy"]["sequences"]) == {f"a/{src.name}", f"b/{src.name}"}
+    per_seq = data["quality"]["demo:wskp"]["sequences"]
+    assert per_seq[f"a/{src.name}"]["psnr"] != per_seq[f"b/{src.name}"]["psnr"]  # 2 vs 3 frames
