@@ -189,6 +189,15 @@ def train_command(
             "dark neighbours costs what it costs in the metric (0: off).",
         ),
     ] = 0.0,
+    rel_l1_weight: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="Add this multiple of relative L1 (|o - t| / (|t| + 0.1)) to --loss: as "
+            "unsaturated as relMSE, with a gradient bounded by 10 per pixel, so a few smeared "
+            "pixels do not swamp the rest of the batch (0: off).",
+        ),
+    ] = 0.0,
     brightness: Annotated[
         str, typer.Option(help="Random brightness range LOW,HIGH (1,1 disables).")
     ] = "0.8,1.2",
@@ -361,6 +370,7 @@ def train_command(
             device=device,
             loss=loss.value,
             relmse_weight=relmse_weight,
+            rel_l1_weight=rel_l1_weight,
             rotations=rotations,
             permute=permute_channels,
             exposure=exposure.value,

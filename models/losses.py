@@ -1,6 +1,7 @@
 """Training losses: SMAPE (Lee24 eq. (5)), temporal SMAPE (Isik21 eq. (12)) and Open Image
 Denoise's L1 + MS-SSIM on a perceptual transfer curve; `LOSSES` names the choices of
-`denoise-train --loss`, and relMSE (`--relmse-weight`) may be added to any of them.
+`denoise-train --loss`, and relMSE (`--relmse-weight`) or relative L1 (`--rel-l1-weight`) may be
+added to any of them.
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from .msssim import ms_ssim
 from .transfer import exposed_transfer
 
 SMAPE_EPS = 1e-3  # Lee24 eq. (5): epsilon = 0.001
+# relative L1's floor: sqrt(RELMSE_EPS), so that both relative terms call the same pixels dark
+REL_L1_EPS = RELMSE_EPS**0.5
 # Zhao et al. 2017 ("Loss functions for image restoration with neural networks", eq. (4)):
 # alpha = 0.84 on MS-SSIM, 1 - alpha on L1; the mix Open Image Denoise trains with.
 MS_SSIM_WEIGHT = 0.84
@@ -38,6 +41,18 @@ def smape(output: torch.Tensor, target: torch.Tensor, eps: float = SMAPE_EPS) ->
 def relmse(output: torch.Tensor, target: torch.Tensor, eps: float = RELMSE_EPS) -> torch.Tensor:
     """Mean over pixels and colour channels of (o - t)^2 / (t^2 + eps), on raw radiance."""
     return ((output - target) ** 2 / (target**2 + eps)).mean()
+
+
+def relative_l1(
+    output: torch.Tensor, target: torch.Tensor, eps: float = REL_L1_EPS
+) -> torch.Tensor:
+    """Mean over pixels and colour channels of |o - t| / (|t| + eps), on raw radiance.
+
+    Like relMSE it does not saturate (SMAPE's gradient falls as 1 / o^2 once o >> t, so a light
+    smeared onto a dark wall is almost free), but its gradient is bounded by 1 / eps whatever
+    the error: a few smeared pixels cannot swamp the rest of the batch, as relMSE's squares do.
+    """
+    return ((output - target).abs() / (target.abs() + eps)).mean()
 
 
 def temporal_smape(
@@ -99,15 +114,23 @@ LOSSES: dict[str, LossFn | None] = {
 }
 
 
-def training_loss(name: str, model: torch.nn.Module, relmse_weight: float = 0.0) -> LossFn:
+def training_loss(
+    name: str, model: torch.nn.Module, relmse_weight: float = 0.0, rel_l1_weight: float = 0.0
+) -> LossFn:
     """The loss `denoise-train --loss name` minimises for `model`: (outputs, reference,
     temporal_weight) -> scalar. A replacement of the paper's loss keeps a family's
     regulariser where the family exposes one as `model.regulariser()` (a scalar, or None).
-    `relmse_weight` > 0 adds that multiple of relMSE (`relmse`) of the outputs to the loss."""
+    `relmse_weight` / `rel_l1_weight` > 0 add that multiple of relMSE (`relmse`) / relative L1
+    (`relative_l1`) of the outputs to the loss."""
     if name not in LOSSES:
         raise ValueError(f"unknown loss {name!r}; choose one of {', '.join(LOSSES)}")
-    if relmse_weight < 0:
-        raise ValueError(f"relmse_weight must be >= 0, got {relmse_weight}")
+    extra = {
+        "relmse_weight": (relmse_weight, relmse),
+        "rel_l1_weight": (rel_l1_weight, relative_l1),
+    }
+    for label, (weight, _) in extra.items():
+        if weight < 0:
+            raise ValueError(f"{label} must be >= 0, got {weight}")
     fn = LOSSES[name]
     hook = getattr(model, "regulariser", None)
     if fn is None:
@@ -121,12 +144,14 @@ def training_loss(name: str, model: torch.nn.Module, relmse_weight: float = 0.0)
             reg = hook()
             return loss if reg is None else loss + reg
 
-    if not relmse_weight:
+    terms = [(weight, term) for weight, term in extra.values() if weight]
+    if not terms:
         return base
 
-    def with_relmse(outputs, reference, temporal_weight):
-        return base(outputs, reference, temporal_weight) + relmse_weight * relmse(
-            outputs, reference
-        )
+    def with_relative_terms(outputs, reference, temporal_weight):
+        loss = base(outputs, reference, temporal_weight)
+        for weight, term in terms:
+            loss = loss + weight * term(outputs, reference)
+        return loss
 
-    return with_relmse
+    return with_relative_terms

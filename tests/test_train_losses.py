@@ -10,6 +10,7 @@ import torch
 from rtdenoise.models.losses import (
     LOSSES,
     l1_ms_ssim_loss,
+    relative_l1,
     relmse,
     sequence_loss,
     smape,
@@ -161,3 +162,27 @@ def test_relmse_weight_adds_the_unsaturated_term():
     assert float(relmse(smeared, dark)) > 100 * float(smape(smeared, dark))
     with pytest.raises(ValueError, match="relmse_weight"):
         training_loss("smape", model, relmse_weight=-1.0)
+
+
+def test_rel_l1_weight_adds_a_bounded_unsaturated_term():
+    """--rel-l1-weight adds w x mean(|o - t| / (|t| + 0.1)); with relMSE in the same loss both
+    are added. Its gradient at a smeared pixel stays 1 / (t + 0.1) however bright the smear (so
+    it neither saturates like SMAPE nor grows with the error like relMSE)."""
+    model = build_model("afn", TINY)
+    o, r = torch.rand(1, 2, 3, 16, 16), torch.rand(1, 2, 3, 16, 16)
+    expected = ((o - r).abs() / (r.abs() + 0.1)).mean()
+    torch.testing.assert_close(relative_l1(o, r), expected)
+    fn = training_loss("smape", model, rel_l1_weight=0.5)
+    torch.testing.assert_close(fn(o, r, 0.25), sequence_loss(o, r, 0.25) + 0.5 * expected)
+    both = training_loss("smape", model, relmse_weight=0.25, rel_l1_weight=0.5)
+    torch.testing.assert_close(both(o, r, 0.25), fn(o, r, 0.25) + 0.25 * relmse(o, r))
+    dark = torch.full((1, 1, 3, 4, 4), 0.02)
+    for smear in (5.0, 50.0):
+        out = dark.clone()
+        out[..., 0, 0] = smear
+        out.requires_grad_(True)
+        relative_l1(out, dark).backward()
+        per_pixel = float(out.grad[..., 0, 0].mean()) * out.numel()
+        assert per_pixel == pytest.approx(1 / (0.02 + 0.1), rel=1e-5)
+    with pytest.raises(ValueError, match="rel_l1_weight"):
+        training_loss("smape", model, rel_l1_weight=-1.0)
