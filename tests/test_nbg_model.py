@@ -82,6 +82,25 @@ def test_guidenet_input_is_gamma_mapped_radiance_and_features():
     torch.testing.assert_close(net_in[:, 9:], depth / depth.amax(dim=(1, 2, 3), keepdim=True))
 
 
+def test_log1p_guide_input_keeps_a_light_apart_from_a_white_wall():
+    """guide_tonemap "log1p": GuideNet reads log1p(radiance), not clipped: a pixel of 9 and
+    one of 1 differ (under Meng20's S both are 1); the grids still filter HDR irradiance."""
+    m = NBG({"hidden": 4, "guide_tonemap": "log1p"}).eval()
+    seen = {}
+    m.guide_net.register_forward_pre_hook(lambda _, args: seen.update(net_in=args[0]))
+    b = _buffers(2)
+    b["color"][:, :, :3] = 9.0
+    b["color"][:, :, 3:6] = 1.0
+    with torch.no_grad():
+        m(b, m.initial_state(N, H, W), torch.tensor(1.0))
+    net_in = seen["net_in"]
+    torch.testing.assert_close(net_in[:, :3], torch.log1p(b["color"]))
+    assert float(net_in[:, :3, :3].min()) == pytest.approx(np.log(10.0))
+    assert float(net_in[:, :3, 3:6].max()) == pytest.approx(np.log(2.0))
+    with pytest.raises(ValueError, match="guide_tonemap"):
+        NBGConfig.from_dict({"guide_tonemap": "filmic"})
+
+
 def test_temporal_accumulation_keeps_history_weight_0_8():
     """A static camera and a converged history (length 10): the grids filter
     0.2 x current + 0.8 x history (Meng20 s.4.6)."""

@@ -40,9 +40,11 @@ Choices the paper leaves open (all in `NBGConfig`, stored in checkpoints):
 - w3 = 1 - w1 - w2 may be negative (as in the official code); the composed irradiance is
   clamped at 0 before remodulation (S of eq. (14) maps negatives to 0 anyway: the loss is
   unchanged).
-- Network input S clips to [0, 1] (official `tone_mapping`); `gamma` = 2.2 for the input and
-  the loss (BMFR data; the Tungsten tone mapper of s.5 is not used). S(x) uses max(x, 1e-8)
-  so that its gradient stays finite at black pixels.
+- Network input S clips to [0, 1] (official `tone_mapping`; `guide_tonemap` = "gamma"), or
+  log1p(x) unclipped (`guide_tonemap` = "log1p", as AFN / Isik21 read radiance: under S a
+  light and a white wall beside it are both 1, so no guide can tell them apart); `gamma` =
+  2.2 for the input and the loss (BMFR data; the Tungsten tone mapper of s.5 is not used).
+  S(x) uses max(x, 1e-8) so that its gradient stays finite at black pixels.
 - Depth scaling `depth_scale` "log": log1p(d) / log1p(max d) per frame (as AFN / WSKP; the
   official data uses a normalised depth PNG); "linear": d / max d.
 - Loss: eq. (14) plus `temporal_weight` x the L1 of S-mapped frame differences when training
@@ -79,6 +81,7 @@ from ..ops.bilateral_grid import bilateral_grid
 INPUT_CHANNELS = 10  # S(r_TA x albedo), albedo, normal, depth (Meng20 s.5)
 GAMMA_FLOOR = 1e-8  # S(x) = min(max(x, GAMMA_FLOOR)^(1/gamma), 1): finite gradient at 0
 INITS = ("glorot", "uniform", "torch")
+GUIDE_TONEMAPS = ("gamma", "log1p")
 
 
 @dataclass(frozen=True)
@@ -99,6 +102,7 @@ class NBGConfig(AccumulatingConfig):
     outlier_sigma: float = 3.0
     outlier_albedo: float = 0.1
     outlier_normal: float = 0.1
+    guide_tonemap: str = "gamma"  # GuideNet's radiance input: "gamma" (Meng20, clipped) or "log1p"
 
     def validate(self) -> None:
         super().validate()  # AccumulatingConfig: the reprojection
@@ -117,6 +121,10 @@ class NBGConfig(AccumulatingConfig):
             raise self.fail(f"gamma must be > 0, got {self.gamma}")
         if self.depth_scale not in ("log", "linear"):
             raise self.fail(f"depth_scale must be 'log' or 'linear', got {self.depth_scale!r}")
+        if self.guide_tonemap not in GUIDE_TONEMAPS:
+            raise self.fail(
+                f"guide_tonemap must be one of {GUIDE_TONEMAPS}, got {self.guide_tonemap!r}"
+            )
         if self.init not in INITS:
             raise self.fail(f"init must be one of {INITS}, got {self.init!r}")
         if self.outlier_sigma <= 0:
@@ -131,6 +139,14 @@ def gamma_map(x: torch.Tensor, gamma: float) -> torch.Tensor:
     """S(x) = clip(max(x, 0)^(1 / gamma), 0, 1) (Meng20 eq. (14), the official tone_mapping),
     with the floor GAMMA_FLOOR instead of 0 (finite gradient at black pixels)."""
     return torch.clamp(torch.clamp(x, min=GAMMA_FLOOR) ** (1.0 / gamma), max=1.0)
+
+
+def guide_radiance(radiance: torch.Tensor, config: NBGConfig) -> torch.Tensor:
+    """GuideNet's radiance channels: S(x) (Meng20 s.5, clipped at 1) or log1p(max(x, 0)), which
+    keeps a light apart from a white wall beside it (both are 1 under S)."""
+    if config.guide_tonemap == "log1p":
+        return torch.log1p(torch.clamp(radiance, min=0.0))
+    return gamma_map(radiance, config.gamma)
 
 
 def _filmic(x: torch.Tensor) -> torch.Tensor:
@@ -234,7 +250,7 @@ class NBG(DenoiserModel):
         r_ta = frame.accumulated
 
         # 3. GuideNet input (s.5): LDR radiance with albedo, albedo, normal, depth in [0, 1].
-        radiance = gamma_map(r_ta * frame.modulation, cfg.gamma)
+        radiance = guide_radiance(r_ta * frame.modulation, cfg)
         normal01 = 0.5 * (frame.normal + 1.0)
         depth_01 = depth01(frame.depth, cfg.depth_scale)
         net_out = self.guide_net(torch.cat((radiance, frame.albedo, normal01, depth_01), dim=1))
