@@ -84,7 +84,7 @@ def test_guidenet_input_is_gamma_mapped_radiance_and_features():
 
 def test_log1p_guide_input_keeps_a_light_apart_from_a_white_wall():
     """guide_tonemap "log1p": GuideNet reads log1p(radiance), not clipped: a pixel of 9 and
-    one of 1 differ (under Meng20's S both are 1); the grids still filter HDR irradiance."""
+    one of 1 differ (under Meng20's S both are 1)."""
     m = NBG({"hidden": 4, "guide_tonemap": "log1p"}).eval()
     seen = {}
     m.guide_net.register_forward_pre_hook(lambda _, args: seen.update(net_in=args[0]))

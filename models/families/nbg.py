@@ -12,7 +12,7 @@ configuration:
    frame 0.2"): `models.accumulation.demodulate_and_accumulate` with min_alpha = 0.2;
 3. GuideNet input (s.5, 10 channels): S(r_TA * (albedo + eps)), albedo, normal as (n + 1) / 2,
    depth scaled to [0, 1] per frame, where S(x) = clip(max(x, 0)^(1 / 2.2), 0, 1) (the official
-   `tone_mapping`);
+   `tone_mapping`; `guide_tonemap` = "log1p" reads log1p(r_TA * (albedo + eps)) instead);
 4. GuideNet (Fig. 2 left): 5 x 5 conv 10 -> 20, leaky ReLU, 5 x 5 conv 20 -> 5, sigmoid:
    three guides g_k = 255 sigma_k and weights w1, w2 (s.4.1, s.4.5);
 5. three bilateral grids (s.4.2-4.5), (s, D) = (4, 64), (8, 32), (16, 16): R_k =
@@ -249,7 +249,7 @@ class NBG(DenoiserModel):
         frame = demodulate_and_accumulate(buffers, state, reset, cfg)
         r_ta = frame.accumulated
 
-        # 3. GuideNet input (s.5): LDR radiance with albedo, albedo, normal, depth in [0, 1].
+        # 3. GuideNet input (s.5): radiance with albedo (S or log1p), albedo, normal, depth.
         radiance = guide_radiance(r_ta * frame.modulation, cfg)
         normal01 = 0.5 * (frame.normal + 1.0)
         depth_01 = depth01(frame.depth, cfg.depth_scale)
