@@ -282,3 +282,26 @@ def test_temporal_screening_drops_labels_outside_the_current_range():
     assert torch.isfinite(out).all()
     with pytest.raises(ValueError, match="temporal_screening"):
         build_model("crossreg", {**SMALL, "temporal_screening": 4})
+
+
+def test_temporal_loss_weight_splits_eq_11_between_its_terms():
+    """eq. (11) is 0.5 spatial + 0.5 temporal (the default); temporal_loss_weight w gives
+    (1 - w) spatial + w temporal, so 0 leaves the spatial term alone; out of [0, 1] refused."""
+    gen = torch.Generator().manual_seed(1)
+    hat_a, hat_b, pa, pb, prev_a, prev_b = (torch.rand(1, 3, 8, 8, generator=gen) for _ in range(6))
+    history = torch.rand(1, 1, 8, 8, generator=gen) > 0.5
+
+    def loss(w: float) -> float:
+        model = build_model("crossreg", {**SMALL, "temporal_loss_weight": w})
+        return float(model.online_loss(hat_a, hat_b, pa, pb, prev_a, prev_b, history))
+
+    spatial = float(
+        (0.5 * ((hat_a - pb) ** 2 / (pb * pb + 1e-2) + (hat_b - pa) ** 2 / (pa * pa + 1e-2))).mean()
+    )
+    assert loss(0.0) == pytest.approx(spatial, rel=1e-6)
+    default = build_model("crossreg", SMALL)
+    paper = float(default.online_loss(hat_a, hat_b, pa, pb, prev_a, prev_b, history))
+    assert loss(0.5) == paper and loss(1.0) != pytest.approx(paper)
+    assert abs(2 * paper - loss(0.0) - loss(1.0)) < 1e-6  # linear in w
+    with pytest.raises(ValueError, match="temporal_loss_weight"):
+        build_model("crossreg", {**SMALL, "temporal_loss_weight": 1.5})
