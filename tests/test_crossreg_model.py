@@ -305,3 +305,32 @@ def test_temporal_loss_weight_splits_eq_11_between_its_terms():
     assert abs(2 * paper - loss(0.0) - loss(1.0)) < 1e-6  # linear in w
     with pytest.raises(ValueError, match="temporal_loss_weight"):
         build_model("crossreg", {**SMALL, "temporal_loss_weight": 1.5})
+
+
+def test_alpha_min_bounds_what_the_history_contributes():
+    """alpha >= alpha_min: with a floor of 0.9 the second frame's output is much nearer the
+    output without history than at the paper's sigmoid alone (0); frame 0 (no history) is the
+    same either way; a floor out of [0, 1) is refused."""
+    frames = _frames(2)
+
+    def outputs(alpha_min: float, reset_second: bool) -> list[torch.Tensor]:
+        model = build_model("crossreg", {**SMALL, "alpha_min": alpha_min, "lr": 1e-12})
+        state, outs = None, []
+        with torch.no_grad():
+            for t, frame in enumerate(frames):
+                buffers = {k: torch.from_numpy(v[None]) for k, v in frame.items()}
+                if state is None:
+                    state = model.initial_state(1, 32, 32)
+                fresh = t == 0 or reset_second
+                out, state = model(buffers, state, torch.tensor(1.0 if fresh else 0.0))
+                outs.append(out)
+        return outs
+
+    paper, floor = outputs(0.0, False), outputs(0.9, False)
+    no_history = outputs(0.0, True)[1]
+    torch.testing.assert_close(paper[0], floor[0])
+    far = float((paper[1] - no_history).abs().mean())
+    near = float((floor[1] - no_history).abs().mean())
+    assert far > 0 and near < 0.3 * far, (near, far)
+    with pytest.raises(ValueError, match="alpha_min"):
+        build_model("crossreg", {**SMALL, "alpha_min": 1.0})

@@ -121,6 +121,9 @@ class CrossRegConfig(FamilyConfig):
     # temporal labels (warped previous pilots) share noise with the warped previous output that
     # each buffer's output blends in, so that term also rewards leaning on the history
     temporal_loss_weight: float = 0.5
+    # a floor on the temporal weight alpha (not in the paper: 0): with alpha near 0 the output is
+    # the reprojected history and a wrong one (a light behind moving glass) is never cleared
+    alpha_min: float = 0.0
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -136,6 +139,8 @@ class CrossRegConfig(FamilyConfig):
         k = self.temporal_screening
         if k != 0 and (k < 3 or k % 2 == 0):
             raise self.fail(f"temporal_screening must be 0 or odd >= 3, got {k}")
+        if not 0.0 <= self.alpha_min < 1.0:
+            raise self.fail(f"alpha_min must be in [0, 1), got {self.alpha_min}")
         if not 0.0 <= self.temporal_loss_weight <= 1.0:
             raise self.fail(
                 f"temporal_loss_weight must be in [0, 1], got {self.temporal_loss_weight}"
@@ -376,6 +381,8 @@ class CrossReg(DenoiserModel):
                 raw = torch.func.functional_call(self.unet, params, (net_in,))
                 band = 1.0 / (raw[:, :5] ** 2 + BAND_EPS)
                 alpha = torch.sigmoid(raw[:, 5:6])
+                if cfg.alpha_min:  # at least alpha_min of this frame's filtered pilots
+                    alpha = cfg.alpha_min + (1.0 - cfg.alpha_min) * alpha
 
             # 5. Spatial filter (eq. (9)) and temporal blend (eqs. (8), (10)).
             with stage("filter"):
