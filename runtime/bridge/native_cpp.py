@@ -13,8 +13,9 @@ runtime guards in Python, and `guard_buffer` / `zero_guide` here call the C form
 tests/test_native_guard.py can compare the two bit for bit.
 
 It holds only some ops (`covered_ops`); the chooser (`bridge.register_fast_kernels`) picks it
-for a model when it holds every rtdenoise op of that model (each of its ops measured at least
-as fast as its numba kernel: benchmarks/README.md). No numba, no torch here.
+for a model when it holds every rtdenoise op of that model (each of its ops measured faster
+than its numba kernel or within the noise of one run: benchmarks/README.md). No numba, no
+torch here.
 """
 
 from __future__ import annotations
