@@ -12,9 +12,8 @@ rows: median (min-max) ms of each path and the ratio numba / C++ (> 1: C++ faste
     python benchmarks/native_ops.py --size 320x240 --size 1280x720 --model demo:afn
     python benchmarks/native_ops.py --op AffinityFilter --op CrossRegression --model demo:crossreg
 
-Models run at 720p (the largest size) when several sizes are given; a model with an op of
-`native_cpp.NOT_BY_DEFAULT` (BilateralGrid, AffinityFilter, TemporalAffinityFilter) is timed
-on the library all the same (`fast_kernels="native-cpp"`).
+Models run at 720p and larger when several sizes are given (every size when one is), each
+path asked for by name (`fast_kernels="native-cpp"` and `"native"`).
 
 `--first-frame MODEL` adds a fresh process per path: import and load, the first frame and the
 tenth at the first size (numba loads its on-disk cache of compiled kernels, or compiles, on

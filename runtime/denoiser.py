@@ -67,8 +67,7 @@ class Denoiser:
         portable ONNX function bodies, inlined by ONNX Runtime. True picks the fastest path
         that holds every op of the model: "native-cpp" (the C++ library rtdenoise_ops, no
         Python in the run) where it was built and holds them all and the environment
-        variable RTDENOISE_NATIVE_OPS is not "0" (with numba installed, not for the ops it
-        runs slower than numba: `native_cpp.NOT_BY_DEFAULT`), else the numba kernels (the
+        variable RTDENOISE_NATIVE_OPS is not "0", else the numba kernels (the
         `numba` extra) through "native" (the compiled bridge, zero-copy) or "extensions"
         (onnxruntime-extensions, which copies every input and output); with neither, the
         portable bodies, with one warning per process. A string asks for one of these

@@ -1,6 +1,6 @@
 """The C++ custom-op library rtdenoise_ops (runtime/bridge/native_ops/, `native-cpp`): built by
-the install, chosen by default for a model whose every custom op it holds (afn, wskp,
-crossreg, nbg; affinity on request), forced off by RTDENOISE_NATIVE_OPS=0 or an explicit
+the install, chosen by default for a model whose every custom op it holds (every shipped
+demo), forced off by RTDENOISE_NATIVE_OPS=0 or an explicit
 bridge, the same numbers as the numba kernels over a demo's frames with state, errors as ONNX
 Runtime statuses naming the op and the cause, no Python inside. (Each op against its other
 forms: test_ops_three_forms.py, test_op_specs.py.) Skipped, with the reason, only where the
@@ -56,13 +56,11 @@ def test_chosen_for_afn_and_only_where_it_holds_every_op(monkeypatch):
     assert den.bridge == "native-cpp" and den.fast_kernels
     assert Denoiser("demo:wskp").bridge == "native-cpp"
     assert Denoiser("demo:nbg").bridge == "native-cpp"
-    assert Denoiser("demo:affinity").bridge == "native"  # its filters: held, not by default
-    assert Denoiser("demo:affinity", fast_kernels="native-cpp").bridge == "native-cpp"
+    assert Denoiser("demo:affinity").bridge == "native-cpp"  # numba installed or not
     for family in ("affinity", "crossreg"):  # every op of every demo is held
         assert demo_ops(family) <= native_cpp.covered_ops(), family
     assert Denoiser("demo:crossreg").bridge == "native-cpp"
-    assert Denoiser("demo:affinity").bridge == "native"  # held, not yet by default (slower)
-    assert Denoiser("demo:affinity", fast_kernels="native-cpp").bridge == "native-cpp"
+    assert Denoiser("demo:affinity", fast_kernels="native").bridge == "native"  # numba, asked
     assert Denoiser("demo:afn", fast_kernels="native").bridge == "native"  # numba, asked for
     held = native_cpp.covered_ops() - {"AffinityFilter", "TemporalAffinityFilter"}
     monkeypatch.setattr(native_cpp, "covered_ops", lambda: held)  # a library without them

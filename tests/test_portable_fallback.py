@@ -31,11 +31,12 @@ FRAMES = 4  # of the committed sequence seq_000 (64x64), state carried from fram
 
 
 @pytest.mark.parametrize(
-    "missing, cpp", [("onnxruntime_extensions", "1"), ("numba", "1"), ("numba", "0")]
+    "missing, cpp", [("onnxruntime_extensions", "0"), ("numba", "1"), ("numba", "0")]
 )
 def test_denoise_run_without_a_kernel_library(tmp_path, missing, cpp):
-    """demo:affinity (its filters: on numba where numba is installed) through denoise-run,
-    which says on its timing line which path ran."""
+    """demo:affinity through denoise-run, which says on its timing line which path ran: with
+    the C++ library off, the native bridge runs the numba kernels without
+    onnxruntime-extensions; without numba, the library, or with neither the portable bodies."""
     seq = sample_sequences()[0]
     args = [str(seq / "frame_000[0-2].exr"), "-o", str(tmp_path), "--model", "demo:affinity"]
     proc = subprocess.run(
@@ -127,9 +128,9 @@ def relative_error(got: np.ndarray, want: np.ndarray) -> float:
 
 
 def test_every_shipped_demo_runs_on_the_cpp_library_without_numba(tmp_path, monkeypatch):
-    """The base install (no numba): each demo on native-cpp, nbg and affinity too (slower than
-    numba at 720p, the only fast path here), no warning, no numba imported, the numbers of the
-    numba path within 1e-5 over FRAMES frames with state."""
+    """The base install (no numba): each demo on native-cpp, as with numba installed, no
+    warning, no numba imported, the numbers of the numba path within 1e-5 over FRAMES frames
+    with state."""
     if not native_cpp.available():
         pytest.skip(f"the C++ library was not built: {native_cpp.unavailable_reason()}")
     monkeypatch.delenv(native_cpp.ENV_SWITCH, raising=False)

@@ -7,7 +7,6 @@ take precedence over the model-local function body of the same name (docs/archit
 - `native-cpp` (`native_cpp.py`, the C++ library `native_ops/`): the ops' own C++ kernels, no
   Python in the run; chosen by default for a model when it was built and holds every
   rtdenoise op of that model (`RTDENOISE_NATIVE_OPS=0` or an explicit bridge turns it off);
-  with numba installed not for the ops it runs slower (`native_cpp.NOT_BY_DEFAULT`);
 
 and two bridges to the numba kernels of `runtime/kernels/`, for every `KERNELS` entry, which
 need numba (the `numba` extra; nothing here imports it before one of them is chosen):
@@ -73,8 +72,7 @@ def numba_installed() -> bool:
 def choose_bridge(ops: Iterable[str] | None) -> str:
     """The bridge for a model whose rtdenoise ops are `ops` (None: not known): "native-cpp"
     when the C++ library is built and holds all of them and RTDENOISE_NATIVE_OPS does not
-    turn it off, and, where numba is installed, none of them is slower there than numba
-    (`native_cpp.NOT_BY_DEFAULT`); else the best numba bridge (`default_bridge`), or, where
+    turn it off; else the best numba bridge (`default_bridge`), or, where
     numba is not installed, ModuleNotFoundError saying why the library cannot run them."""
     from . import native_cpp
 
@@ -83,7 +81,6 @@ def choose_bridge(ops: Iterable[str] | None) -> str:
         and not native_cpp.disabled_by_env()
         and native_cpp.available()
         and not native_cpp.missing_ops(ops)
-        and not (numba_installed() and native_cpp.NOT_BY_DEFAULT.intersection(ops))
     ):
         return "native-cpp"
     if not numba_installed():

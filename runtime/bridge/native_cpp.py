@@ -13,8 +13,9 @@ runtime guards in Python, and `guard_buffer` / `zero_guide` here call the C form
 tests/test_native_guard.py can compare the two bit for bit.
 
 It holds only some ops (`covered_ops`); the chooser (`bridge.register_fast_kernels`) picks it
-for a model only when it holds every rtdenoise op of that model, and, where numba is
-installed, none of them NOT_BY_DEFAULT. No numba, no torch here.
+for a model when it holds every rtdenoise op of that model (each of its ops measured faster
+than its numba kernel or within the noise of one run: benchmarks/README.md). No numba, no
+torch here.
 """
 
 from __future__ import annotations
@@ -37,17 +38,6 @@ FILE = {"win32": "rtdenoise_ops.dll", "darwin": "librtdenoise_ops.dylib"}.get(
 # "0" (or "off", "numba"): never choose this library by default (the numba kernels run).
 ENV_SWITCH = "RTDENOISE_NATIVE_OPS"
 ABI = 1  # rtdenoise_ops_abi() of the library this module speaks to
-# Ops the library holds but the default does not use yet: measured slower than their numba
-# kernel at 720p (benchmarks/README.md, "The C++ custom-op library"; numba / C++ from
-# interleaved runs on the loaded 2-core VM): TemporalAffinityFilter 0.65-0.94x in four runs,
-# AffinityFilter 0.88-1.16x, demo:affinity's frame 0.73-0.95x (at 320x240 both ahead,
-# 1.03-1.26x). Where numba is installed a model with one of them keeps the numba path unless
-# it asks for fast_kernels="native-cpp"; without numba (the base install) and for a C or C++
-# host it runs here (faster than the portable bodies). CrossBilateralFilter and
-# CrossRegression (1.02-1.15x, demo:crossreg's frame 1.06-1.12x) are used by default, and so is
-# BilateralGrid since it keeps its buffers between calls (1.08 / 1.03 / 1.01x at 320x240 /
-# 720p / 1080p, demo:nbg's frame 1.28 / 1.00x, 2026-12-03; 1.43 / 1.11 / 0.98x the day before).
-NOT_BY_DEFAULT = frozenset({"AffinityFilter", "TemporalAffinityFilter"})
 
 
 class NativeOpsError(RuntimeError):

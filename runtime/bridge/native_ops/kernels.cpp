@@ -207,6 +207,21 @@ inline void gather_row(const float *RESTRICT plane, float *RESTRICT out, const i
                  plane[t[2 * w + x]] * wt[2 * w + x] + plane[t[3 * w + x]] * wt[3 * w + x];
 }
 
+/* gather_row for `count` planes into rows of `out`, w apart: each pixel's four taps and
+ * weights are read once for all the planes (TemporalAccumulation's C + 5), not once a plane;
+ * every value is the same sum in the same order. */
+inline void gather_rows(const float *const *planes, int64_t count, float *RESTRICT out,
+                        const int32_t *RESTRICT t, const float *RESTRICT wt, int64_t w) {
+    for (int64_t x = 0; x < w; ++x) {
+        const int32_t t0 = t[x], t1 = t[w + x], t2 = t[2 * w + x], t3 = t[3 * w + x];
+        const float w0 = wt[x], w1 = wt[w + x], w2 = wt[2 * w + x], w3 = wt[3 * w + x];
+        for (int64_t p = 0; p < count; ++p) {
+            const float *RESTRICT plane = planes[p];
+            out[p * w + x] = plane[t0] * w0 + plane[t1] * w1 + plane[t2] * w2 + plane[t3] * w3;
+        }
+    }
+}
+
 struct ReprojectArgs {
     const float *previous, *motion;
     float *out;
@@ -271,6 +286,7 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
     std::vector<float> weights(static_cast<size_t>(4 * w));
     std::vector<float> warped_buffer(static_cast<size_t>((n_ch + 5) * w));
     std::vector<unsigned char> ok_buffer(static_cast<size_t>(w));
+    std::vector<const float *> planes(static_cast<size_t>(n_ch + 5));
     float *warped = warped_buffer.data();
     unsigned char *RESTRICT ok = ok_buffer.data();
     const float zero = 0.0f, one = 1.0f, half = 0.5f;
@@ -280,12 +296,9 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
         const float *RESTRICT mx = a.motion + (n * 2 * h + y) * w;
         const float *RESTRICT my = mx + hw;
         taps_row(mx, my, y, h, w, taps.data(), weights.data());
-        for (int64_t c = 0; c < n_ch + 1; ++c)
-            gather_row(a.ta_state + (n * (n_ch + 1) + c) * hw, warped + c * w, taps.data(),
-                       weights.data(), w);
-        for (int64_t c = 0; c < 4; ++c)
-            gather_row(a.geometry + (n * 4 + c) * hw, warped + (n_ch + 1 + c) * w, taps.data(),
-                       weights.data(), w);
+        for (int64_t c = 0; c < n_ch + 1; ++c) planes[c] = a.ta_state + (n * (n_ch + 1) + c) * hw;
+        for (int64_t c = 0; c < 4; ++c) planes[n_ch + 1 + c] = a.geometry + (n * 4 + c) * hw;
+        gather_rows(planes.data(), n_ch + 5, warped, taps.data(), weights.data(), w);
         const float *RESTRICT d_row = a.depth + (n * h + y) * w;
         const float *RESTRICT nx = a.normal + (n * 3 * h + y) * w;
         const float *RESTRICT ny = nx + hw;
