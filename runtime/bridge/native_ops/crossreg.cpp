@@ -56,6 +56,22 @@ constexpr int64_t BANDS = 5;
 constexpr int64_t GUIDES = 12;  // pilot A, pilot B, albedo, normal: 3 channels each
 constexpr int64_t SUMS = 20;    // per pilot: [m f, m], then [m D_k f, m D_k] for 4 distances
 
+/* One output row's chunk of at most CBF_CHUNK pixels, all taps: the chunk's 40 sums (20 per
+ * pilot: [m f, m], then [m D_k f, m D_k] for k = colour, albedo, normal, position) stay in
+ * L1-sized local rows for the whole window, and each tap is one fused, branch-free loop over
+ * the chunk (the four squared distances, both exponents of eq. (9), both weights, the 40
+ * sums). Each sum adds the same terms in the same (iy, ix) order as the numba kernel
+ * (kernels/cross_bilateral_filter.py `_distances`, `exp_row`, `_accumulate`), which streams
+ * the whole row's 40 sums through the cache once per tap instead. */
+constexpr int64_t CBF_CHUNK = 64;
+
+struct CbfArgs {
+    const float *guides[4];  // pilot_a, pilot_b, albedo, normal (N, 3, H, W)
+    const float *band;       // (N, 5, H, W)
+    float *sum_a, *sum_b, *dsum_a, *dsum_b;
+    int64_t h, w, window;
+};
+
 /* kernels/common.py exp_row: exp(arg) for arg <= 0 (2^k from the exponent bits, 2^f from a
  * degree-6 polynomial). */
 RTD_INLINE void exp_row(float *RESTRICT dst, const float *RESTRICT arg, int64_t w) {
@@ -147,54 +163,66 @@ RTD_INLINE void accumulate(const float *RESTRICT f, int64_t wp, const float *RES
     }
 }
 
-struct CbfArgs {
-    const float *guides[4];  // pilot_a, pilot_b, albedo, normal (N, 3, H, W)
-    const float *band;       // (N, 5, H, W)
-    float *sum_a, *sum_b, *dsum_a, *dsum_b;
-    int64_t h, w, window;
-};
-
 RTD_CLONES void cbf_rows(const CbfArgs &a, int64_t begin, int64_t end) {
-    const int64_t h = a.h, w = a.w, hw = h * w, r = a.window / 2, wp = w + 2 * r;
+    constexpr int64_t C = CBF_CHUNK;
+    const int64_t h = a.h, w = a.w, r = a.window / 2, pw = C + 2 * r;  // pw: a pad row
     const float inv_r2 = static_cast<float>(1.0 / static_cast<double>(r * r));
-    std::vector<float> buffer(static_cast<size_t>(GUIDES * wp + 2 * SUMS * w + 8 * w));
-    std::vector<int64_t> sx_of(static_cast<size_t>(wp));
-    float *pad = buffer.data(), *acc_a = pad + GUIDES * wp, *acc_b = acc_a + SUMS * w;
-    float *d = acc_b + SUMS * w, *arg_a = d + 4 * w, *arg_b = arg_a + w, *m_a = arg_b + w,
-          *m_b = m_a + w;
-    for (int64_t x = 0; x < wp; ++x) sx_of[static_cast<size_t>(x)] = mirror(x - r, w);
+    // pad: the 12 guide rows of the chunk and its margins; cen: the 12 centre rows; bnd: the
+    // 5 band rows; acc: 2 x 20 sums; d, arg, m: one tap's distances, exponents, weights
+    std::vector<float> buffer(static_cast<size_t>(GUIDES * pw + (GUIDES + BANDS + 2 * SUMS + 8) * C));
+    float *pad = buffer.data(), *cen_rows = pad + GUIDES * pw, *bnd = cen_rows + GUIDES * C,
+          *acc_a = bnd + BANDS * C, *acc_b = acc_a + SUMS * C, *d = acc_b + SUMS * C,
+          *arg_a = d + 4 * C, *arg_b = arg_a + C, *m_a = arg_b + C, *m_b = m_a + C;
+    const float *cen[GUIDES];
+    for (int64_t g = 0; g < GUIDES; ++g) cen[g] = cen_rows + g * C;
+    // a chunk's pad column x reads image column sx_of[x0 + x] (mirrored); past the image's
+    // last chunk it repeats the last column (those pixels are computed and dropped)
+    std::vector<int64_t> sx_of(static_cast<size_t>(w + C + 2 * r));
+    for (int64_t x = 0; x < w + C + 2 * r; ++x)
+        sx_of[static_cast<size_t>(x)] = x - r < w + r ? mirror(x - r, w) : mirror(w - 1 + r, w);
     for (int64_t row = begin; row < end; ++row) {
         const int64_t n = row / h, y = row - n * h;
-        const float *cen[GUIDES];  // the centre pixels of row y
-        for (int64_t g = 0; g < 4; ++g)
-            for (int64_t c = 0; c < 3; ++c) cen[g * 3 + c] = a.guides[g] + ((n * 3 + c) * h + y) * w;
-        const float *band = a.band + (n * BANDS * h + y) * w;  // channel b at band + b h w
-        std::fill(acc_a, acc_a + 2 * SUMS * w, 0.0f);
-        for (int64_t iy = 0; iy < a.window; ++iy) {
-            const int64_t sy = mirror(y + iy - r, h);
+        for (int64_t x0 = 0; x0 < w; x0 += C) {
+            const int64_t cw = std::min<int64_t>(C, w - x0);  // the chunk's image pixels
             for (int64_t g = 0; g < 4; ++g)
                 for (int64_t c = 0; c < 3; ++c) {
-                    const float *RESTRICT src = a.guides[g] + ((n * 3 + c) * h + sy) * w;
-                    float *RESTRICT dst = pad + (g * 3 + c) * wp;
-                    for (int64_t x = 0; x < wp; ++x) dst[x] = src[sx_of[static_cast<size_t>(x)]];
+                    const float *src = a.guides[g] + ((n * 3 + c) * h + y) * w + x0;
+                    std::copy_n(src, cw, cen_rows + (g * 3 + c) * C);
+                    std::fill(cen_rows + (g * 3 + c) * C + cw, cen_rows + (g * 3 + c + 1) * C, src[cw - 1]);
                 }
-            for (int64_t ix = 0; ix < a.window; ++ix) {
-                const float dist_p =
-                    static_cast<float>((iy - r) * (iy - r) + (ix - r) * (ix - r)) * inv_r2;
-                distances(pad, wp, cen, band, hw, ix, dist_p, d, arg_a, arg_b, w);
-                exp_row(m_a, arg_a, w);
-                exp_row(m_b, arg_b, w);
-                accumulate(pad + ix, wp, m_a, d, d + 2 * w, d + 3 * w, dist_p, acc_a, w);
-                accumulate(pad + 3 * wp + ix, wp, m_b, d + w, d + 2 * w, d + 3 * w, dist_p, acc_b, w);
+            for (int64_t b = 0; b < BANDS; ++b) {
+                const float *src = a.band + ((n * BANDS + b) * h + y) * w + x0;
+                std::copy_n(src, cw, bnd + b * C);
+                std::fill(bnd + b * C + cw, bnd + (b + 1) * C, src[cw - 1]);
             }
-        }
-        for (int64_t c = 0; c < 4; ++c) {
-            std::copy(acc_a + c * w, acc_a + (c + 1) * w, a.sum_a + ((n * 4 + c) * h + y) * w);
-            std::copy(acc_b + c * w, acc_b + (c + 1) * w, a.sum_b + ((n * 4 + c) * h + y) * w);
-        }
-        for (int64_t c = 0; c < 16; ++c) {
-            std::copy(acc_a + (4 + c) * w, acc_a + (5 + c) * w, a.dsum_a + ((n * 16 + c) * h + y) * w);
-            std::copy(acc_b + (4 + c) * w, acc_b + (5 + c) * w, a.dsum_b + ((n * 16 + c) * h + y) * w);
+            std::fill(acc_a, acc_a + 2 * SUMS * C, 0.0f);
+            for (int64_t iy = 0; iy < a.window; ++iy) {
+                const int64_t sy = mirror(y + iy - r, h);
+                for (int64_t g = 0; g < 4; ++g)
+                    for (int64_t c = 0; c < 3; ++c) {
+                        const float *RESTRICT src = a.guides[g] + ((n * 3 + c) * h + sy) * w;
+                        float *RESTRICT dst = pad + (g * 3 + c) * pw;
+                        const int64_t *RESTRICT sx = sx_of.data() + x0;
+                        for (int64_t x = 0; x < pw; ++x) dst[x] = src[sx[x]];
+                    }
+                for (int64_t ix = 0; ix < a.window; ++ix) {
+                    const float dist_p =
+                        static_cast<float>((iy - r) * (iy - r) + (ix - r) * (ix - r)) * inv_r2;
+                    distances(pad, pw, cen, bnd, C, ix, dist_p, d, arg_a, arg_b, C);
+                    exp_row(m_a, arg_a, C);
+                    exp_row(m_b, arg_b, C);
+                    accumulate(pad + ix, pw, m_a, d, d + 2 * C, d + 3 * C, dist_p, acc_a, C);
+                    accumulate(pad + 3 * pw + ix, pw, m_b, d + C, d + 2 * C, d + 3 * C, dist_p, acc_b, C);
+                }
+            }
+            for (int64_t c = 0; c < 4; ++c) {
+                std::copy_n(acc_a + c * C, cw, a.sum_a + ((n * 4 + c) * h + y) * w + x0);
+                std::copy_n(acc_b + c * C, cw, a.sum_b + ((n * 4 + c) * h + y) * w + x0);
+            }
+            for (int64_t c = 0; c < 16; ++c) {
+                std::copy_n(acc_a + (4 + c) * C, cw, a.dsum_a + ((n * 16 + c) * h + y) * w + x0);
+                std::copy_n(acc_b + (4 + c) * C, cw, a.dsum_b + ((n * 16 + c) * h + y) * w + x0);
+            }
         }
     }
 }
