@@ -234,31 +234,54 @@ constexpr int64_t P = 6;
 constexpr int64_t NQ = 14;  // y (3), albedo (3), normal (3), sigma, var, target (3)
 constexpr int64_t NSUM = 61;
 
+constexpr int64_t L = 4;  // lanes: centres (regression) or pixels (reconstruction) at once
+
+/* The planes q (y, albedo, normal, sigma, var, target) of regression b are kept in a
+ * phase-split, mirror-padded layout: padded column xp = x + R (R = stride * ceil(r / stride)
+ * >= r, so that every window of a centre and every covering centre of a pixel lies inside)
+ * is stored at phase xp % stride, position xp / stride. Pixels stride apart are then
+ * neighbours: the same tap of L consecutive centres, the same phase of L pixels, and their L
+ * covering centres are contiguous loads (the vectorised lanes below). */
 struct CrArgs {
     const float *y_a, *y_b, *albedo, *normal;
     float *pilot_a, *pilot_b;
     int64_t n, h, w, window, stride, hc, wc, lo, hi;
-    double *q;     // (2N, 14, H, W)
-    double *beta;  // (2N, Hc, Wc, 3, 6)
+    int64_t rb;      // R / stride
+    int64_t xx;      // positions per phase of a padded row (a row: stride * xx)
+    double *q;       // (2N, 14, H, stride, xx)
+    int64_t bm, bw;  // beta: (2N, Hc, 3, 6, bw), centre j at bm + j, the margins 0
+    double *beta;
+    int64_t row() const { return stride * xx; }
+    int64_t at(int64_t x) const {  // a row's offset of pixel column x, -R <= x < W + R
+        const int64_t xp = x + rb * stride;
+        return (xp % stride) * xx + xp / stride;
+    }
 };
 
 /* kernels/cross_regression.py _stack: q of regression b (A's variables against y^B for
- * b < N, then B's against y^A), var over the in-image 3x3 neighbours. */
+ * b < N, then B's against y^A), var over the in-image 3x3 neighbours; the padded columns
+ * repeat their mirrored pixel (as the other forms read mirror(x)). */
 RTD_CLONES void cr_stack(const CrArgs &a, int64_t begin, int64_t end) {
-    const int64_t n_img = a.n, h = a.h, w = a.w, hw = h * w;
+    const int64_t n_img = a.n, h = a.h, w = a.w, hw = h * w, row_len = a.row(), rs = a.rb * a.stride;
+    std::vector<double> tmp(static_cast<size_t>(NQ * w));
+    std::vector<int64_t> src_of(static_cast<size_t>(row_len)), dst_of(static_cast<size_t>(row_len));
+    for (int64_t xp = 0; xp < row_len; ++xp) {
+        src_of[static_cast<size_t>(xp)] = mirror(xp - rs, w);
+        dst_of[static_cast<size_t>(xp)] = (xp % a.stride) * a.xx + xp / a.stride;
+    }
     for (int64_t row = begin; row < end; ++row) {
         const int64_t b = row / h, yy = row - b * h, m = b % n_img;
         const float *y = (b < n_img ? a.y_a : a.y_b) + m * 3 * hw;
         const float *target = (b < n_img ? a.y_b : a.y_a) + m * 3 * hw;
         const float *albedo = a.albedo + m * 3 * hw, *normal = a.normal + m * 3 * hw;
-        double *q = a.q + b * NQ * hw;
+        double *t = tmp.data();
         for (int64_t c = 0; c < 3; ++c)
             for (int64_t x = 0; x < w; ++x) {
                 const int64_t at = c * hw + yy * w + x;
-                q[c * hw + yy * w + x] = y[at];
-                q[(3 + c) * hw + yy * w + x] = albedo[at];
-                q[(6 + c) * hw + yy * w + x] = normal[at];
-                q[(11 + c) * hw + yy * w + x] = target[at];
+                t[c * w + x] = y[at];
+                t[(3 + c) * w + x] = albedo[at];
+                t[(6 + c) * w + x] = normal[at];
+                t[(11 + c) * w + x] = target[at];
             }
         const int64_t y0 = std::max<int64_t>(0, yy - 1), y1 = std::min<int64_t>(h, yy + 2);
         for (int64_t x = 0; x < w; ++x) {
@@ -273,69 +296,49 @@ RTD_CLONES void cr_stack(const CrArgs &a, int64_t begin, int64_t end) {
                 const double dv = centre - (total - centre) / static_cast<double>(count);
                 var += dv * dv;
             }
-            q[9 * hw + yy * w + x] = std::sqrt(var);
-            q[10 * hw + yy * w + x] = var;
+            t[9 * w + x] = std::sqrt(var);
+            t[10 * w + x] = var;
+        }
+        for (int64_t k = 0; k < NQ; ++k) {
+            double *dst = a.q + ((b * NQ + k) * h + yy) * row_len;
+            const double *src = t + k * w;
+            for (int64_t xp = 0; xp < row_len; ++xp)
+                dst[dst_of[static_cast<size_t>(xp)]] = src[src_of[static_cast<size_t>(xp)]];
         }
     }
 }
 
-/* kernels/cross_regression.py _centre_sums: the 61 distinct sums of X^T W X and X^T W y over
- * the mirrored window of centre (cy, cx), in local accumulators. */
-RTD_INLINE void centre_sums(const double *q, int64_t h, int64_t w, int64_t cy, int64_t cx, int64_t r,
-                            double *RESTRICT acc) {
-    const int64_t hw = h * w, at = cy * w + cx;
-    const double c0 = q[at], c1 = q[hw + at], c2 = q[2 * hw + at];
-    const double ca[3] = {q[3 * hw + at], q[4 * hw + at], q[5 * hw + at]};
-    const double cn0 = q[6 * hw + at], cn1 = q[7 * hw + at], cn2 = q[8 * hw + at];
-    const double csig = q[9 * hw + at], cvar = q[10 * hw + at];
-    for (int64_t k = 0; k < NSUM; ++k) acc[k] = 0.0;
-    for (int64_t dy = -r; dy <= r; ++dy) {
-        const int64_t sy = mirror(cy + dy, h);
-        for (int64_t dx = -r; dx <= r; ++dx) {
-            const int64_t s = sy * w + mirror(cx + dx, w);
-            const double d0 = q[s] - c0, d1 = q[hw + s] - c1, d2 = q[2 * hw + s] - c2;
-            double wgt = std::exp(-(d0 * d0 + d1 * d1 + d2 * d2) / (cvar + q[10 * hw + s] + 1e-4));
-            wgt += 1e-7;
-            const double inv = 1.0 / (csig + q[9 * hw + s] + 1e-2);
-            const double n0 = q[6 * hw + s] - cn0, n1 = q[7 * hw + s] - cn1, n2 = q[8 * hw + s] - cn2;
-            const double wn0 = wgt * n0, wn1 = wgt * n1, wn2 = wgt * n2;
-            acc[0] += wgt;
-            acc[1] += wn0;
-            acc[2] += wn1;
-            acc[3] += wn2;
-            acc[4] += wn0 * n0;
-            acc[5] += wn0 * n1;
-            acc[6] += wn0 * n2;
-            acc[7] += wn1 * n1;
-            acc[8] += wn1 * n2;
-            acc[9] += wn2 * n2;
-            const double dc[3] = {d0, d1, d2};
-            for (int64_t c = 0; c < 3; ++c) {
-                const double x1 = dc[c] * inv;
-                const double x2 = q[(3 + c) * hw + s] - ca[c];
-                const double t = q[(11 + c) * hw + s];
-                const double wx1 = wgt * x1, wx2 = wgt * x2, wt = wgt * t;
-                double *RESTRICT k = acc + 10 + 17 * c;
-                k[0] += wx1;
-                k[1] += wx2;
-                k[2] += wx1 * x1;
-                k[3] += wx1 * x2;
-                k[4] += wx2 * x2;
-                k[5] += wx1 * n0;
-                k[6] += wx1 * n1;
-                k[7] += wx1 * n2;
-                k[8] += wx2 * n0;
-                k[9] += wx2 * n1;
-                k[10] += wx2 * n2;
-                k[11] += wt;
-                k[12] += wx1 * t;
-                k[13] += wx2 * t;
-                k[14] += wt * n0;
-                k[15] += wt * n1;
-                k[16] += wt * n2;
-            }
-        }
-    }
+/* exp(v) for v <= 0 in double precision, in branch-free arithmetic that vectorises (std::exp
+ * does not): v = k ln 2 + f (k = round(v log2 e) by the 1.5 * 2^52 shift, Cody-Waite ln 2),
+ * exp(f) by its Taylor series to f^13 / 13! (|f| <= ln2 / 2: truncation below 1e-17), 2^k
+ * from the exponent bits. Within about 1 ulp of std::exp; arguments below -708 give
+ * exp(-708) ~ 3e-308, which every caller adds to 1e-7 (the weights' floor), as it does 0. */
+RTD_INLINE double exp_nonpos(double v) {
+    v = v > -708.0 ? v : -708.0;
+    const double shifter = 6755399441055744.0;  // 1.5 * 2^52
+    const double t = v * 1.4426950408889634 + shifter;
+    const double k = t - shifter;
+    const double f = (v - k * 6.93147180369123816490e-01) - k * 1.90821492927058770002e-10;
+    double p = 1.0 / 6227020800.0;
+    p = p * f + 1.0 / 479001600.0;
+    p = p * f + 1.0 / 39916800.0;
+    p = p * f + 1.0 / 3628800.0;
+    p = p * f + 1.0 / 362880.0;
+    p = p * f + 1.0 / 40320.0;
+    p = p * f + 1.0 / 5040.0;
+    p = p * f + 1.0 / 720.0;
+    p = p * f + 1.0 / 120.0;
+    p = p * f + 1.0 / 24.0;
+    p = p * f + 1.0 / 6.0;
+    p = p * f + 0.5;
+    p = p * f + 1.0;
+    p = p * f + 1.0;
+    int64_t bits;
+    std::memcpy(&bits, &t, sizeof bits);  // 0x4338... + k: its low 12 bits are k mod 4096
+    bits = static_cast<int64_t>(static_cast<uint64_t>(bits + 1023) << 52);
+    double scale;
+    std::memcpy(&scale, &bits, sizeof scale);
+    return p * scale;
 }
 
 /* kernels/cross_regression.py _solve: beta (6) of channel c, a Cholesky solve of the ridge
@@ -386,66 +389,157 @@ RTD_INLINE void solve(const double *acc, int64_t c, double *RESTRICT beta) {
     }
 }
 
-/* kernels/cross_regression.py _regress: tasks (regression b, centre row i). */
+/* kernels/cross_regression.py _centre_sums and _regress: tasks (regression b, centre row i);
+ * per block of L consecutive centres (one lane each), the 61 distinct sums of X^T W X and
+ * X^T W y over the mirrored window (10 shared by the colour channels, 17 per channel), each
+ * lane adding its terms in the window's order, then a 6 x 6 Cholesky solve per channel. */
 RTD_CLONES void cr_regress(const CrArgs &a, int64_t begin, int64_t end) {
-    const int64_t h = a.h, w = a.w, hc = a.hc, wc = a.wc, r = a.window / 2;
-    double acc[NSUM];
+    const int64_t h = a.h, hc = a.hc, wc = a.wc, r = a.window / 2, s = a.stride, xx = a.xx;
+    const int64_t row_len = a.row(), plane = h * row_len, rs = a.rb * s;
+    alignas(32) double acc[NSUM][L];
+    double sums[NSUM], beta6[P];
     for (int64_t task = begin; task < end; ++task) {
-        const int64_t b = task / hc, i = task - b * hc;
-        const double *q = a.q + b * NQ * h * w;
-        for (int64_t j = 0; j < wc; ++j) {
-            centre_sums(q, h, w, a.stride * i, a.stride * j, r, acc);
-            for (int64_t c = 0; c < 3; ++c) solve(acc, c, a.beta + (((b * hc + i) * wc + j) * 3 + c) * P);
+        const int64_t b = task / hc, i = task - b * hc, cy = s * i;
+        const double *q = a.q + b * NQ * plane;
+        for (int64_t j0 = 0; j0 < wc; j0 += L) {
+            // the centres' own values: phase 0, positions rb + j0 + l
+            alignas(32) double cv[11][L];
+            for (int64_t k = 0; k < 11; ++k)
+                for (int64_t l = 0; l < L; ++l) cv[k][l] = q[k * plane + cy * row_len + a.rb + j0 + l];
+            for (int64_t k = 0; k < NSUM; ++k)
+                for (int64_t l = 0; l < L; ++l) acc[k][l] = 0.0;
+            for (int64_t dy = -r; dy <= r; ++dy) {
+                const double *qr = q + mirror(cy + dy, h) * row_len;
+                for (int64_t dx = -r; dx <= r; ++dx) {
+                    const double *RESTRICT qt = qr + ((dx + rs) % s) * xx + (dx + rs) / s + j0;
+                    for (int64_t l = 0; l < L; ++l) {
+                        const double d0 = qt[l] - cv[0][l], d1 = qt[plane + l] - cv[1][l],
+                                     d2 = qt[2 * plane + l] - cv[2][l];
+                        double wgt = exp_nonpos(-(d0 * d0 + d1 * d1 + d2 * d2) /
+                                                (cv[10][l] + qt[10 * plane + l] + 1e-4));
+                        wgt += 1e-7;
+                        const double inv = 1.0 / (cv[9][l] + qt[9 * plane + l] + 1e-2);
+                        const double n0 = qt[6 * plane + l] - cv[6][l],
+                                     n1 = qt[7 * plane + l] - cv[7][l],
+                                     n2 = qt[8 * plane + l] - cv[8][l];
+                        const double wn0 = wgt * n0, wn1 = wgt * n1, wn2 = wgt * n2;
+                        acc[0][l] += wgt;
+                        acc[1][l] += wn0;
+                        acc[2][l] += wn1;
+                        acc[3][l] += wn2;
+                        acc[4][l] += wn0 * n0;
+                        acc[5][l] += wn0 * n1;
+                        acc[6][l] += wn0 * n2;
+                        acc[7][l] += wn1 * n1;
+                        acc[8][l] += wn1 * n2;
+                        acc[9][l] += wn2 * n2;
+                        const double dc[3] = {d0, d1, d2};
+                        for (int64_t c = 0; c < 3; ++c) {
+                            const double x1 = dc[c] * inv;
+                            const double x2 = qt[(3 + c) * plane + l] - cv[3 + c][l];
+                            const double t = qt[(11 + c) * plane + l];
+                            const double wx1 = wgt * x1, wx2 = wgt * x2, wt = wgt * t;
+                            double(*RESTRICT k)[L] = acc + 10 + 17 * c;
+                            k[0][l] += wx1;
+                            k[1][l] += wx2;
+                            k[2][l] += wx1 * x1;
+                            k[3][l] += wx1 * x2;
+                            k[4][l] += wx2 * x2;
+                            k[5][l] += wx1 * n0;
+                            k[6][l] += wx1 * n1;
+                            k[7][l] += wx1 * n2;
+                            k[8][l] += wx2 * n0;
+                            k[9][l] += wx2 * n1;
+                            k[10][l] += wx2 * n2;
+                            k[11][l] += wt;
+                            k[12][l] += wx1 * t;
+                            k[13][l] += wx2 * t;
+                            k[14][l] += wt * n0;
+                            k[15][l] += wt * n1;
+                            k[16][l] += wt * n2;
+                        }
+                    }
+                }
+            }
+            for (int64_t l = 0; l < L && j0 + l < wc; ++l) {
+                for (int64_t k = 0; k < NSUM; ++k) sums[k] = acc[k][l];
+                for (int64_t c = 0; c < 3; ++c) {
+                    solve(sums, c, beta6);
+                    for (int64_t t = 0; t < P; ++t)
+                        a.beta[(((b * hc + i) * 3 + c) * P + t) * a.bw + a.bm + j0 + l] = beta6[t];
+                }
+            }
         }
     }
 }
 
 /* kernels/cross_regression.py _reconstruct: eq. (5) over the covering centres, clamped >= 0,
- * rows of regression b into pilot_a (b < N) or pilot_b. */
+ * rows of regression b into pilot_a (b < N) or pilot_b. The pixels x = stride m + ph of one
+ * phase ph go L at a time (one lane each): their covering centres are stride apart too and
+ * pass the window test together; a centre outside the grid (near the left and right edges)
+ * adds nothing to its lane, as it is skipped in the other forms. */
 RTD_CLONES void cr_reconstruct(const CrArgs &a, int64_t begin, int64_t end) {
     const int64_t h = a.h, w = a.w, hw = h * w, hc = a.hc, wc = a.wc, r = a.window / 2;
-    const int64_t stride = a.stride, lo = a.lo, hi = a.hi;
+    const int64_t s = a.stride, lo = a.lo, hi = a.hi, row_len = a.row(), plane = h * row_len;
     for (int64_t row = begin; row < end; ++row) {
         const int64_t b = row / h, y = row - b * h;
-        const double *q = a.q + b * NQ * hw;
+        const double *q = a.q + b * NQ * plane;
         float *pilot = b < a.n ? a.pilot_a + b * 3 * hw : a.pilot_b + (b - a.n) * 3 * hw;
-        for (int64_t x = 0; x < w; ++x) {
-            const int64_t p = y * w + x;
-            const double p0 = q[p], p1 = q[hw + p], p2 = q[2 * hw + p];
-            const double psig = q[9 * hw + p], pvar = q[10 * hw + p];
-            double num0 = 0.0, num1 = 0.0, num2 = 0.0, den = 0.0;
-            for (int64_t dj = -lo; dj <= hi; ++dj) {
-                const int64_t jy = y / stride + dj;
-                if (jy < 0 || jy >= hc || std::abs(y - stride * jy) > r) continue;
-                const int64_t cy = stride * jy;
-                for (int64_t di = -lo; di <= hi; ++di) {
-                    const int64_t ix = x / stride + di;
-                    if (ix < 0 || ix >= wc || std::abs(x - stride * ix) > r) continue;
-                    const int64_t cx = stride * ix, c_at = cy * w + cx;
-                    const double dy0 = p0 - q[c_at], dy1 = p1 - q[hw + c_at], dy2 = p2 - q[2 * hw + c_at];
-                    const double spread = q[10 * hw + c_at] + pvar + 1e-4;
-                    const double wgt = std::exp(-(dy0 * dy0 + dy1 * dy1 + dy2 * dy2) / spread) + 1e-7;
-                    const double inv = 1.0 / (q[9 * hw + c_at] + psig + 1e-2);
-                    const double n0 = q[6 * hw + p] - q[6 * hw + c_at];
-                    const double n1 = q[7 * hw + p] - q[7 * hw + c_at];
-                    const double n2 = q[8 * hw + p] - q[8 * hw + c_at];
-                    const double dyc[3] = {dy0, dy1, dy2};
-                    double *num[3] = {&num0, &num1, &num2};
-                    for (int64_t c = 0; c < 3; ++c) {
-                        const double *co = a.beta + (((b * hc + jy) * wc + ix) * 3 + c) * P;
-                        const double x2 = q[(3 + c) * hw + p] - q[(3 + c) * hw + c_at];
-                        double pred = co[0] + co[1] * dyc[c] * inv + co[2] * x2;
-                        pred += co[3] * n0 + co[4] * n1 + co[5] * n2;
-                        *num[c] += wgt * pred;
+        for (int64_t ph = 0; ph < s && ph < w; ++ph) {
+            const int64_t count = (w - ph + s - 1) / s;  // pixels of this phase
+            const double *qp = q + y * row_len + ((ph + a.rb * s) % s) * a.xx + (ph + a.rb * s) / s;
+            for (int64_t m0 = 0; m0 < count; m0 += L) {
+                alignas(32) double num0[L] = {}, num1[L] = {}, num2[L] = {}, den[L] = {};
+                const double *RESTRICT pv = qp + m0;  // pixel m0 + l at pv[k * plane + l]
+                for (int64_t dj = -lo; dj <= hi; ++dj) {
+                    const int64_t jy = y / s + dj;
+                    if (jy < 0 || jy >= hc || std::abs(y - s * jy) > r) continue;
+                    const int64_t cy = s * jy;
+                    for (int64_t di = -lo; di <= hi; ++di) {
+                        if (std::abs(ph - s * di) > r) continue;  // |x - stride ix| of every lane
+                        const int64_t ix0 = m0 + di;  // lane l's centre: ix0 + l
+                        const double *RESTRICT cq = q + cy * row_len + a.rb + ix0;  // phase 0
+                        const double *RESTRICT co = a.beta + ((b * hc + jy) * 3 * P) * a.bw + a.bm + ix0;
+                        alignas(32) double inside[L];  // 1 for a centre of the grid, 0 outside
+                        for (int64_t l = 0; l < L; ++l) inside[l] = ix0 + l >= 0 && ix0 + l < wc ? 1.0 : 0.0;
+                        for (int64_t l = 0; l < L; ++l) {
+                            const double in = inside[l];
+                            const double dy0 = pv[l] - cq[l], dy1 = pv[plane + l] - cq[plane + l],
+                                         dy2 = pv[2 * plane + l] - cq[2 * plane + l];
+                            const double spread = cq[10 * plane + l] + pv[10 * plane + l] + 1e-4;
+                            const double wgt =
+                                (exp_nonpos(-(dy0 * dy0 + dy1 * dy1 + dy2 * dy2) / spread) + 1e-7) * in;
+                            const double inv = 1.0 / (cq[9 * plane + l] + pv[9 * plane + l] + 1e-2);
+                            const double n0 = pv[6 * plane + l] - cq[6 * plane + l];
+                            const double n1 = pv[7 * plane + l] - cq[7 * plane + l];
+                            const double n2 = pv[8 * plane + l] - cq[8 * plane + l];
+                            const double dyc[3] = {dy0, dy1, dy2};
+                            double pred[3];
+                            for (int64_t c = 0; c < 3; ++c) {
+                                const double *RESTRICT cc = co + c * P * a.bw;
+                                const double x2 = pv[(3 + c) * plane + l] - cq[(3 + c) * plane + l];
+                                double v = cc[l] + cc[a.bw + l] * dyc[c] * inv + cc[2 * a.bw + l] * x2;
+                                v += cc[3 * a.bw + l] * n0 + cc[4 * a.bw + l] * n1 + cc[5 * a.bw + l] * n2;
+                                pred[c] = v;
+                            }
+                            // a centre outside adds (+-)0 (its terms are finite): the sums do not
+                            // change, as where the other forms skip it
+                            num0[l] += wgt * pred[0];
+                            num1[l] += wgt * pred[1];
+                            num2[l] += wgt * pred[2];
+                            den[l] += wgt;
+                        }
                     }
-                    den += wgt;
+                }
+                for (int64_t l = 0; l < L && m0 + l < count; ++l) {
+                    const int64_t p = y * w + s * (m0 + l) + ph;
+                    // numba's max(v, 0.0): 0 where 0 > v, else v (NaN stays NaN)
+                    const double v0 = num0[l] / den[l], v1 = num1[l] / den[l], v2 = num2[l] / den[l];
+                    pilot[p] = static_cast<float>(0.0 > v0 ? 0.0 : v0);
+                    pilot[hw + p] = static_cast<float>(0.0 > v1 ? 0.0 : v1);
+                    pilot[2 * hw + p] = static_cast<float>(0.0 > v2 ? 0.0 : v2);
                 }
             }
-            // numba's max(v, 0.0): 0 where 0 > v, else v (NaN stays NaN)
-            const double v0 = num0 / den, v1 = num1 / den, v2 = num2 / den;
-            pilot[p] = static_cast<float>(0.0 > v0 ? 0.0 : v0);
-            pilot[hw + p] = static_cast<float>(0.0 > v1 ? 0.0 : v1);
-            pilot[2 * hw + p] = static_cast<float>(0.0 > v2 ? 0.0 : v2);
         }
     }
 }
@@ -516,10 +610,16 @@ void cross_regression_run(const Tensor *in, Tensor *out, const int64_t *attrs, i
     a.hc = (a.h + a.stride - 1) / a.stride, a.wc = (a.w + a.stride - 1) / a.stride;
     const int64_t r = a.window / 2;  // ops/cross_regression.py reconstruction_offsets
     a.lo = r / a.stride, a.hi = (r + a.stride - 1) / a.stride;
+    a.rb = a.hi;  // ceil(r / stride)
+    // every read of a lane stays inside: centres j + rb + (dx + R) / stride < wc + 2 rb + L,
+    // pixels and covering centres below that too
+    a.xx = a.wc + 2 * a.rb + L + 2;
+    a.bm = a.lo + 1, a.bw = a.wc + a.lo + a.hi + L + 2;
     const int64_t nb = 2 * a.n, hw = a.h * a.w;
-    // not zero-filled: every element is written before it is read
-    std::unique_ptr<double[]> q(new double[static_cast<size_t>(nb * NQ * hw)]);
-    std::unique_ptr<double[]> beta(new double[static_cast<size_t>(nb * a.hc * a.wc * 3 * P)]);
+    // q: not zero-filled, every element is written before it is read; beta: its margins are
+    // read by lanes whose centre lies outside the grid (their terms are dropped), zeros
+    std::unique_ptr<double[]> q(new double[static_cast<size_t>(nb * NQ * a.h * a.row())]);
+    std::unique_ptr<double[]> beta(new double[static_cast<size_t>(nb * a.hc * 3 * P * a.bw)]());
     a.q = q.get(), a.beta = beta.get();
     parallel_for(nb * a.h, threads, nb * hw * 64,
                  [&](int64_t b, int64_t e) { cr_stack(a, b, e); });
