@@ -49,7 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"# {time.strftime('%Y-%m-%d %H:%M')} UTC, load {os.getloadavg()}, {os.cpu_count()} CPUs")
     print(f"# {' '.join(sys.argv)}")
     (na, _), (nb, _) = libs
-    print(f"\n| op | size | {na} ms | {nb} ms | {na} / {nb} | max rel diff |\n|---|---|---:|---:|---:|---:|")
+    print(f"\n| op | size | {na} ms | {nb} ms | {na} / {nb} | max rel diff |")
+    print("|---|---|---:|---:|---:|---:|")
     for op in args.op:
         spec = get_spec(op)
         attrs = dict(spec.default_attrs)
@@ -72,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
                     time.sleep(args.pause)
             ma, mb = (statistics.median(t) for t in times)
             cells = [f"{statistics.median(t):.1f} ({min(t):.1f}-{max(t):.1f})" for t in times]
-            print(f"| {op} | {size} | {cells[0]} | {cells[1]} | {ma / mb:.2f} | {diff:.1e} |", flush=True)
+            row = f"| {op} | {size} | {cells[0]} | {cells[1]} | {ma / mb:.2f} | {diff:.1e} |"
+            print(row, flush=True)
     return 0
 
 
