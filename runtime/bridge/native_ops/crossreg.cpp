@@ -389,6 +389,67 @@ RTD_INLINE void solve(const double *acc, int64_t c, double *RESTRICT beta) {
     }
 }
 
+/* One window row's tap variables, per lane: [w, n0, n1, n2, x1 (3 channels), x2 (3), t (3)]. */
+constexpr int64_t NV = 13;
+constexpr int64_t SEG = 32;  // taps per pass
+
+/* The 10 sums shared by the channels over `taps` taps, in their order (`_centre_sums`). */
+RTD_INLINE void sums_shared(const double (*RESTRICT v)[NV][L], int64_t taps, double (*RESTRICT acc)[L]) {
+    alignas(32) double s[10][L];
+    for (int64_t i = 0; i < 10; ++i)
+        for (int64_t l = 0; l < L; ++l) s[i][l] = acc[i][l];
+    for (int64_t t = 0; t < taps; ++t)
+        for (int64_t l = 0; l < L; ++l) {
+            const double wgt = v[t][0][l], n0 = v[t][1][l], n1 = v[t][2][l], n2 = v[t][3][l];
+            const double wn0 = wgt * n0, wn1 = wgt * n1, wn2 = wgt * n2;
+            s[0][l] += wgt;
+            s[1][l] += wn0;
+            s[2][l] += wn1;
+            s[3][l] += wn2;
+            s[4][l] += wn0 * n0;
+            s[5][l] += wn0 * n1;
+            s[6][l] += wn0 * n2;
+            s[7][l] += wn1 * n1;
+            s[8][l] += wn1 * n2;
+            s[9][l] += wn2 * n2;
+        }
+    for (int64_t i = 0; i < 10; ++i)
+        for (int64_t l = 0; l < L; ++l) acc[i][l] = s[i][l];
+}
+
+/* Channel c's 17 sums over `taps` taps, in their order. */
+RTD_INLINE void sums_channel(const double (*RESTRICT v)[NV][L], int64_t taps, int64_t c,
+                             double (*RESTRICT k)[L]) {
+    alignas(32) double s[17][L];
+    for (int64_t i = 0; i < 17; ++i)
+        for (int64_t l = 0; l < L; ++l) s[i][l] = k[i][l];
+    for (int64_t t = 0; t < taps; ++t)
+        for (int64_t l = 0; l < L; ++l) {
+            const double wgt = v[t][0][l], n0 = v[t][1][l], n1 = v[t][2][l], n2 = v[t][3][l];
+            const double x1 = v[t][4 + c][l], x2 = v[t][7 + c][l], tg = v[t][10 + c][l];
+            const double wx1 = wgt * x1, wx2 = wgt * x2, wt = wgt * tg;
+            s[0][l] += wx1;
+            s[1][l] += wx2;
+            s[2][l] += wx1 * x1;
+            s[3][l] += wx1 * x2;
+            s[4][l] += wx2 * x2;
+            s[5][l] += wx1 * n0;
+            s[6][l] += wx1 * n1;
+            s[7][l] += wx1 * n2;
+            s[8][l] += wx2 * n0;
+            s[9][l] += wx2 * n1;
+            s[10][l] += wx2 * n2;
+            s[11][l] += wt;
+            s[12][l] += wx1 * tg;
+            s[13][l] += wx2 * tg;
+            s[14][l] += wt * n0;
+            s[15][l] += wt * n1;
+            s[16][l] += wt * n2;
+        }
+    for (int64_t i = 0; i < 17; ++i)
+        for (int64_t l = 0; l < L; ++l) k[i][l] = s[i][l];
+}
+
 /* kernels/cross_regression.py _centre_sums and _regress: tasks (regression b, centre row i);
  * per block of L consecutive centres (one lane each), the 61 distinct sums of X^T W X and
  * X^T W y over the mirrored window (10 shared by the colour channels, 17 per channel), each
@@ -398,6 +459,7 @@ RTD_CLONES void cr_regress(const CrArgs &a, int64_t begin, int64_t end) {
     const int64_t row_len = a.row(), plane = h * row_len, rs = a.rb * s;
     alignas(32) double acc[NSUM][L];
     double sums[NSUM], beta6[P];
+    alignas(32) double var[SEG][NV][L];  // the tap variables of up to SEG taps of a row
     for (int64_t task = begin; task < end; ++task) {
         const int64_t b = task / hc, i = task - b * hc, cy = s * i;
         const double *q = a.q + b * NQ * plane;
@@ -410,55 +472,37 @@ RTD_CLONES void cr_regress(const CrArgs &a, int64_t begin, int64_t end) {
                 for (int64_t l = 0; l < L; ++l) acc[k][l] = 0.0;
             for (int64_t dy = -r; dy <= r; ++dy) {
                 const double *qr = q + mirror(cy + dy, h) * row_len;
-                for (int64_t dx = -r; dx <= r; ++dx) {
-                    const double *RESTRICT qt = qr + ((dx + rs) % s) * xx + (dx + rs) / s + j0;
-                    for (int64_t l = 0; l < L; ++l) {
-                        const double d0 = qt[l] - cv[0][l], d1 = qt[plane + l] - cv[1][l],
-                                     d2 = qt[2 * plane + l] - cv[2][l];
-                        double wgt = exp_nonpos(-(d0 * d0 + d1 * d1 + d2 * d2) /
-                                                (cv[10][l] + qt[10 * plane + l] + 1e-4));
-                        wgt += 1e-7;
-                        const double inv = 1.0 / (cv[9][l] + qt[9 * plane + l] + 1e-2);
-                        const double n0 = qt[6 * plane + l] - cv[6][l],
-                                     n1 = qt[7 * plane + l] - cv[7][l],
-                                     n2 = qt[8 * plane + l] - cv[8][l];
-                        const double wn0 = wgt * n0, wn1 = wgt * n1, wn2 = wgt * n2;
-                        acc[0][l] += wgt;
-                        acc[1][l] += wn0;
-                        acc[2][l] += wn1;
-                        acc[3][l] += wn2;
-                        acc[4][l] += wn0 * n0;
-                        acc[5][l] += wn0 * n1;
-                        acc[6][l] += wn0 * n2;
-                        acc[7][l] += wn1 * n1;
-                        acc[8][l] += wn1 * n2;
-                        acc[9][l] += wn2 * n2;
-                        const double dc[3] = {d0, d1, d2};
-                        for (int64_t c = 0; c < 3; ++c) {
-                            const double x1 = dc[c] * inv;
-                            const double x2 = qt[(3 + c) * plane + l] - cv[3 + c][l];
-                            const double t = qt[(11 + c) * plane + l];
-                            const double wx1 = wgt * x1, wx2 = wgt * x2, wt = wgt * t;
-                            double(*RESTRICT k)[L] = acc + 10 + 17 * c;
-                            k[0][l] += wx1;
-                            k[1][l] += wx2;
-                            k[2][l] += wx1 * x1;
-                            k[3][l] += wx1 * x2;
-                            k[4][l] += wx2 * x2;
-                            k[5][l] += wx1 * n0;
-                            k[6][l] += wx1 * n1;
-                            k[7][l] += wx1 * n2;
-                            k[8][l] += wx2 * n0;
-                            k[9][l] += wx2 * n1;
-                            k[10][l] += wx2 * n2;
-                            k[11][l] += wt;
-                            k[12][l] += wx1 * t;
-                            k[13][l] += wx2 * t;
-                            k[14][l] += wt * n0;
-                            k[15][l] += wt * n1;
-                            k[16][l] += wt * n2;
+                for (int64_t dx0 = -r; dx0 <= r; dx0 += SEG) {
+                    const int64_t taps = std::min<int64_t>(SEG, r + 1 - dx0);
+                    // pass 1: each tap's weight and variables, per lane
+                    for (int64_t dx = dx0; dx < dx0 + taps; ++dx) {
+                        const double *RESTRICT qt = qr + ((dx + rs) % s) * xx + (dx + rs) / s + j0;
+                        double *RESTRICT v = &var[dx - dx0][0][0];
+                        for (int64_t l = 0; l < L; ++l) {
+                            const double d0 = qt[l] - cv[0][l], d1 = qt[plane + l] - cv[1][l],
+                                         d2 = qt[2 * plane + l] - cv[2][l];
+                            double wgt = exp_nonpos(-(d0 * d0 + d1 * d1 + d2 * d2) /
+                                                    (cv[10][l] + qt[10 * plane + l] + 1e-4));
+                            wgt += 1e-7;
+                            const double inv = 1.0 / (cv[9][l] + qt[9 * plane + l] + 1e-2);
+                            v[l] = wgt;
+                            v[L + l] = qt[6 * plane + l] - cv[6][l];
+                            v[2 * L + l] = qt[7 * plane + l] - cv[7][l];
+                            v[3 * L + l] = qt[8 * plane + l] - cv[8][l];
+                            v[4 * L + l] = d0 * inv;
+                            v[5 * L + l] = d1 * inv;
+                            v[6 * L + l] = d2 * inv;
+                            v[7 * L + l] = qt[3 * plane + l] - cv[3][l];
+                            v[8 * L + l] = qt[4 * plane + l] - cv[4][l];
+                            v[9 * L + l] = qt[5 * plane + l] - cv[5][l];
+                            v[10 * L + l] = qt[11 * plane + l];
+                            v[11 * L + l] = qt[12 * plane + l];
+                            v[12 * L + l] = qt[13 * plane + l];
                         }
                     }
+                    // pass 2: the sums, a few at a time over the taps (in registers)
+                    sums_shared(var, taps, acc);
+                    for (int64_t c = 0; c < 3; ++c) sums_channel(var, taps, c, acc + 10 + 17 * c);
                 }
             }
             for (int64_t l = 0; l < L && j0 + l < wc; ++l) {
