@@ -1,8 +1,10 @@
 """Two builds of the C++ library rtdenoise_ops (e.g. before and after a kernel change), op by
 op, interleaved in one process: each op alone in an ONNX model (no function body), one ORT
 session per library file, the op's example inputs at each size, A B A B ... after a warm-up
-call of each. Prints one markdown row per op and size: median (min-max) ms of each side, the
-ratio A / B, and the largest relative difference of B's outputs from A's.
+call of each. Prints one markdown row per op and size: median (min-max) wall ms of each side,
+the ratio A / B, the same ratio of the process's CPU time per call (all its threads: on a
+loaded machine a call waits for a core, and its CPU time moves less than its wall time), and
+the largest relative difference of B's outputs from A's.
 
     cp runtime/bridge/librtdenoise_ops.so /tmp/before.so      # before the change
     ... rebuild ...
@@ -49,8 +51,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"# {time.strftime('%Y-%m-%d %H:%M')} UTC, load {os.getloadavg()}, {os.cpu_count()} CPUs")
     print(f"# {' '.join(sys.argv)}")
     (na, _), (nb, _) = libs
-    print(f"\n| op | size | {na} ms | {nb} ms | {na} / {nb} | max rel diff |")
-    print("|---|---|---:|---:|---:|---:|")
+    print(f"\n| op | size | {na} ms | {nb} ms | {na} / {nb} | CPU {na} / {nb} | max rel diff |")
+    print("|---|---|---:|---:|---:|---:|---:|")
     for op in args.op:
         spec = get_spec(op)
         attrs = dict(spec.default_attrs)
@@ -65,15 +67,19 @@ def main(argv: list[str] | None = None) -> int:
                 for a, b in zip(*outs, strict=True)
             )
             times: list[list[float]] = [[], []]
+            cpu: list[list[float]] = [[], []]
             for _ in range(args.rounds):
                 for k, s in enumerate(sessions):
-                    t0 = time.perf_counter()
+                    t0, c0 = time.perf_counter(), time.process_time()
                     s.run(None, feed)
                     times[k].append((time.perf_counter() - t0) * 1e3)
+                    cpu[k].append((time.process_time() - c0) * 1e3)
                     time.sleep(args.pause)
             ma, mb = (statistics.median(t) for t in times)
+            ca, cb = (statistics.median(t) for t in cpu)
             cells = [f"{statistics.median(t):.1f} ({min(t):.1f}-{max(t):.1f})" for t in times]
-            row = f"| {op} | {size} | {cells[0]} | {cells[1]} | {ma / mb:.2f} | {diff:.1e} |"
+            ratios = f"{ma / mb:.2f} | {ca / cb:.2f}"
+            row = f"| {op} | {size} | {cells[0]} | {cells[1]} | {ratios} | {diff:.1e} |"
             print(row, flush=True)
     return 0
 
