@@ -1,6 +1,10 @@
 /* The kernels of rtdenoise_ops for demo:crossreg (Choi24): CrossRegression (float64
- * throughout, as every form of it) and CrossBilateralFilter (float32), the loops of
- * runtime/kernels/cross_regression.py and cross_bilateral_filter.py. Like numba's fastmath,
+ * throughout, as every form of it) and CrossBilateralFilter (float32), the arithmetic of
+ * runtime/kernels/cross_regression.py and cross_bilateral_filter.py, each sum adding the same
+ * terms in the same order, in a cache- and SIMD-friendlier loop order (CrossBilateralFilter in
+ * L1-sized chunks, CrossRegression 4 centres or pixels per lane; benchmarks/README.md,
+ * "crossreg's custom ops"). CrossRegression's exp is a vectorisable polynomial within ~1 ulp
+ * of std::exp's. Like numba's fastmath,
  * this file lets the compiler contract a multiply and an add into an FMA in the AVX2 and
  * AVX-512 clones; nothing is reassociated.
  *
