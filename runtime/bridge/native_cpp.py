@@ -44,7 +44,8 @@ ABI = 1  # rtdenoise_ops_abi() of the library this module speaks to
 # 1.03-1.26x). Where numba is installed a model with one of them keeps the numba path unless
 # it asks for fast_kernels="native-cpp"; without numba (the base install) and for a C or C++
 # host it runs here (faster than the portable bodies). CrossBilateralFilter and
-# CrossRegression (1.02-1.15x, demo:crossreg's frame 1.06-1.12x) are used by default, and so is
+# CrossRegression (4.11x and 3.14x numba's speed at 720p since 2026-12-04, benchmarks/README.md,
+# "crossreg's custom ops") are used by default, and so is
 # BilateralGrid since it keeps its buffers between calls (1.08 / 1.03 / 1.01x at 320x240 /
 # 720p / 1080p, demo:nbg's frame 1.28 / 1.00x, 2026-12-03; 1.43 / 1.11 / 0.98x the day before).
 NOT_BY_DEFAULT = frozenset({"AffinityFilter", "TemporalAffinityFilter"})
