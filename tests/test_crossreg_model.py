@@ -282,3 +282,22 @@ def test_temporal_screening_drops_labels_outside_the_current_range():
     assert torch.isfinite(out).all()
     with pytest.raises(ValueError, match="temporal_screening"):
         build_model("crossreg", {**SMALL, "temporal_screening": 4})
+
+
+def test_the_online_step_traces_for_export():
+    """The export's symbolic trace of one frame (make_fx, models/online.py traced_step) goes
+    through: the offline-pretraining test on `freeze` (a graph input there) is not taken while
+    exporting (it stopped `denoise-export` of crossreg with a data-dependent guard)."""
+    from rtdenoise.export.onnx_export import (
+        ContractModule,
+        example_inputs,
+        example_size,
+        to_deploy,
+    )
+
+    deployed = to_deploy(CrossReg())
+    wrapper = ContractModule(deployed).eval()
+    h, w = example_size(deployed.pad_multiple)
+    step = deployed.export_module(wrapper, example_inputs(deployed, h, w))
+    ops = {str(n.target) for n in step.graph_module.graph.nodes if n.op == "call_function"}
+    assert any("cross_regression" in op for op in ops), sorted(ops)[:20]
