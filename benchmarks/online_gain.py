@@ -28,7 +28,17 @@ from rtdenoise.models.registry import build_model
 from rtdenoise.runtime.sequences.metrics import mse_tonemapped, psnr_from_mse
 from rtdenoise.shipped import demo_model
 
-ADAM = ("lr", "beta1", "beta2", "adam_eps")  # config keys a frozen run does not read
+# config keys a frozen run's output does not depend on (Adam's and the online loss's)
+LEARNING_ONLY = (
+    "lr",
+    "beta1",
+    "beta2",
+    "adam_eps",
+    "loss_eps",
+    "temporal_pairing",
+    "temporal_screening",
+    "temporal_loss_weight",
+)
 
 
 def run(model, seq, learn: bool) -> list[float]:
@@ -76,7 +86,9 @@ def main(argv: list[str] | None = None) -> int:
         model = build_model("crossreg", config)
         model.load_state_dict(ckpt["state_dict"])
         model.eval()
-        frozen_key = json.dumps({k: v for k, v in config.items() if k not in ADAM}, sort_keys=True)
+        frozen_key = json.dumps(
+            {k: v for k, v in config.items() if k not in LEARNING_ONLY}, sort_keys=True
+        )
         results[name] = {}
         for index, seq in enumerate(seqs):
             t0 = time.perf_counter()

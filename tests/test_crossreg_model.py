@@ -284,6 +284,58 @@ def test_temporal_screening_drops_labels_outside_the_current_range():
         build_model("crossreg", {**SMALL, "temporal_screening": 4})
 
 
+def test_temporal_loss_weight_splits_eq_11_between_its_terms():
+    """eq. (11) is 0.5 spatial + 0.5 temporal (the default); temporal_loss_weight w gives
+    (1 - w) spatial + w temporal, so 0 leaves the spatial term alone; out of [0, 1] refused."""
+    gen = torch.Generator().manual_seed(1)
+    hat_a, hat_b, pa, pb, prev_a, prev_b = (torch.rand(1, 3, 8, 8, generator=gen) for _ in range(6))
+    history = torch.rand(1, 1, 8, 8, generator=gen) > 0.5
+
+    def loss(w: float) -> float:
+        model = build_model("crossreg", {**SMALL, "temporal_loss_weight": w})
+        return float(model.online_loss(hat_a, hat_b, pa, pb, prev_a, prev_b, history))
+
+    spatial = float(
+        (0.5 * ((hat_a - pb) ** 2 / (pb * pb + 1e-2) + (hat_b - pa) ** 2 / (pa * pa + 1e-2))).mean()
+    )
+    assert loss(0.0) == pytest.approx(spatial, rel=1e-6)
+    default = build_model("crossreg", SMALL)
+    paper = float(default.online_loss(hat_a, hat_b, pa, pb, prev_a, prev_b, history))
+    assert loss(0.5) == paper and loss(1.0) != pytest.approx(paper)
+    assert abs(2 * paper - loss(0.0) - loss(1.0)) < 1e-6  # linear in w
+    with pytest.raises(ValueError, match="temporal_loss_weight"):
+        build_model("crossreg", {**SMALL, "temporal_loss_weight": 1.5})
+
+
+def test_alpha_min_bounds_what_the_history_contributes():
+    """alpha >= alpha_min: with a floor of 0.9 the second frame's output is much nearer the
+    output without history than at the paper's sigmoid alone (0); frame 0 (no history) is the
+    same either way; a floor out of [0, 1) is refused."""
+    frames = _frames(2)
+
+    def outputs(alpha_min: float, reset_second: bool) -> list[torch.Tensor]:
+        model = build_model("crossreg", {**SMALL, "alpha_min": alpha_min, "lr": 1e-12})
+        state, outs = None, []
+        with torch.no_grad():
+            for t, frame in enumerate(frames):
+                buffers = {k: torch.from_numpy(v[None]) for k, v in frame.items()}
+                if state is None:
+                    state = model.initial_state(1, 32, 32)
+                fresh = t == 0 or reset_second
+                out, state = model(buffers, state, torch.tensor(1.0 if fresh else 0.0))
+                outs.append(out)
+        return outs
+
+    paper, floor = outputs(0.0, False), outputs(0.9, False)
+    no_history = outputs(0.0, True)[1]
+    torch.testing.assert_close(paper[0], floor[0])
+    far = float((paper[1] - no_history).abs().mean())
+    near = float((floor[1] - no_history).abs().mean())
+    assert far > 0 and near < 0.3 * far, (near, far)
+    with pytest.raises(ValueError, match="alpha_min"):
+        build_model("crossreg", {**SMALL, "alpha_min": 1.0})
+
+
 def test_the_online_step_traces_for_export():
     """The export's symbolic trace of one frame (make_fx, models/online.py traced_step) goes
     through: the offline-pretraining test on `freeze` (a graph input there) is not taken while

@@ -118,6 +118,13 @@ class CrossRegConfig(FamilyConfig):
     # previous pilot is a label only where its k x k min / max range overlaps the current
     # pilots' (every channel); 0 = off, else the odd window k (the code's 7)
     temporal_screening: int = 0
+    # eq. (11)'s weight of the temporal term (the paper's 0.5); 0 = the spatial term alone. The
+    # temporal labels (warped previous pilots) share noise with the warped previous output that
+    # each buffer's output blends in, so that term also rewards leaning on the history
+    temporal_loss_weight: float = 0.5
+    # a floor on the temporal weight alpha (not in the paper: 0): with alpha near 0 the output is
+    # the reprojected history and a wrong one (a light behind moving glass) is never cleared
+    alpha_min: float = 0.0
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -133,6 +140,12 @@ class CrossRegConfig(FamilyConfig):
         k = self.temporal_screening
         if k != 0 and (k < 3 or k % 2 == 0):
             raise self.fail(f"temporal_screening must be 0 or odd >= 3, got {k}")
+        if not 0.0 <= self.alpha_min < 1.0:
+            raise self.fail(f"alpha_min must be in [0, 1), got {self.alpha_min}")
+        if not 0.0 <= self.temporal_loss_weight <= 1.0:
+            raise self.fail(
+                f"temporal_loss_weight must be in [0, 1], got {self.temporal_loss_weight}"
+            )
         if self.temporal_pairing not in ("cross", "same"):
             raise self.fail(
                 f"temporal_pairing must be 'cross' or 'same', got {self.temporal_pairing!r}"
@@ -372,6 +385,8 @@ class CrossReg(DenoiserModel):
                 raw = torch.func.functional_call(self.unet, params, (net_in,))
                 band = 1.0 / (raw[:, :5] ** 2 + BAND_EPS)
                 alpha = torch.sigmoid(raw[:, 5:6])
+                if cfg.alpha_min:  # at least alpha_min of this frame's filtered pilots
+                    alpha = cfg.alpha_min + (1.0 - cfg.alpha_min) * alpha
 
             # 5. Spatial filter (eq. (9)) and temporal blend (eqs. (8), (10)).
             with stage("filter"):
@@ -448,7 +463,8 @@ class CrossReg(DenoiserModel):
         )
         temporal = 0.5 * (rel(hat_a, label_a) + rel(hat_b, label_b))  # eq. (13)
         temporal = torch.where(has_history, temporal, spatial)
-        return (0.5 * spatial + 0.5 * temporal).mean()  # eq. (11)
+        w = self.cfg.temporal_loss_weight
+        return ((1.0 - w) * spatial + w * temporal).mean()  # eq. (11): w = 0.5
 
 
 __all__ = ["CrossReg", "CrossRegConfig", "UNet"]
