@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 import onnx  # noqa: E402
 import onnxruntime as ort  # noqa: E402
 
+from rtdenoise.export.learning_branch import all_nodes  # noqa: E402
 from rtdenoise.runtime import bridge  # noqa: E402
 from rtdenoise.runtime.contract import RESET, contract_from_session  # noqa: E402
 from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
@@ -39,7 +40,11 @@ def profile(model: str, size: tuple[int, int], frames: int, threads: int | None)
     so = ort.SessionOptions()
     if threads:
         so.intra_op_num_threads = threads
-    bridge.register_fast_kernels(so)
+    # the model's ops: the default bridge for them (the C++ library where it holds them all),
+    # as Denoiser picks it; with no ops named the numba kernels would run
+    ops = {n.op_type for n in all_nodes(proto.graph) if n.domain == "rtdenoise"}
+    chosen = bridge.register_fast_kernels(so, None, ops)
+    print(f"# fast kernels: {chosen}")
     so.add_session_config_entry(ALLOW_SPINNING, "0")
     so.enable_profiling = True
     so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "ort")
@@ -61,7 +66,7 @@ def profile(model: str, size: tuple[int, int], frames: int, threads: int | None)
         feed[RESET] = np.array(1.0 if k < 2 else 0.0, np.float32)
         feed.update({s.input_name: state[s.name] for s in contract.state})
         t0 = time.perf_counter()
-        with bridge.numba_threads(kernel_thread_count((h, w), threads)):
+        with bridge.kernel_threads(chosen, kernel_thread_count((h, w), threads)):
             outs = session.run(None, feed)
         if k >= 2:
             walls["learn" if freeze == 0 else "frozen"].append((time.perf_counter() - t0) * 1e3)

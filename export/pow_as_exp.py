@@ -1,4 +1,4 @@
-"""Write x ** c (c a constant, not an integer) as exp(c log x) at export.
+"""Write x ** c (c a constant, not an integer) as exp(c log x), and x ** 1 as x, at export.
 
 ONNX Runtime's CPU Pow with a scalar exponent calls the scalar `pow` per element; Exp, Log and
 Mul vectorise. WSKP's and NBG's gamma curve (x ** (1 / 2.2) on a 3-channel 720p frame, 2
@@ -9,6 +9,10 @@ for c > 0, inf for c < 0: exp(c * -inf)), x < 0 or NaN (NaN: the log of a negati
 NaN, as is a negative base to a fractional power), x = inf. At x = -inf Pow follows C's pow
 (inf or 0) and exp(c log x) gives NaN. An integer exponent keeps its Pow: (-2) ** 2 = 4, but
 log(-2) is NaN.
+
+x ** 1 (autograd's derivative of x ** 2, `2 * x ** 1`: demo:crossreg's backward has five at
+720p) becomes Identity, equal for every x (C's pow(x, 1) is x, NaN and infinities included).
+ORT computed it with the scalar `pow`: 0.5 s of a loaded 720p learning frame, 2026-12-04.
 """
 
 from __future__ import annotations
@@ -22,7 +26,8 @@ from .conv_widths import drop_unread_initializers, is_standard
 
 def pow_as_exp(proto: onnx.ModelProto) -> list[str]:
     """Rewrite, in place, every Pow of the main graph whose exponent is a float scalar
-    initializer with a fractional part; returns the names of the rewritten nodes."""
+    initializer with a fractional part, or is 1 (Identity); returns the names of the rewritten
+    nodes."""
     graph = proto.graph
     inits = {i.name: i for i in graph.initializer}
     nodes, done, exponents = [], [], set()
@@ -36,9 +41,17 @@ def pow_as_exp(proto: onnx.ModelProto) -> list[str]:
             or value.size != 1
             or value.dtype.kind != "f"
             or not np.isfinite(value).all()
-            or float(value.reshape(())) == np.round(float(value.reshape(())))
         ):
             nodes.append(node)
+            continue
+        if float(value.reshape(())) == 1.0:  # x ** 1 = x
+            name = node.name or node.output[0]
+            nodes.append(helper.make_node("Identity", [node.input[0]], [node.output[0]], name=name))
+            done.append(node.name)
+            exponents.add(node.input[1])
+            continue
+        if float(value.reshape(())) == np.round(float(value.reshape(()))):
+            nodes.append(node)  # an integer exponent: Pow (a negative base is allowed)
             continue
         x, out, base = node.input[0], node.output[0], node.name or node.output[0]
         c = numpy_helper.from_array(value.astype(np.float32).reshape(()), f"{base}_exponent")

@@ -23,6 +23,7 @@ Medians over `repeats` frames after one warm-up frame, state fed back as in prod
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import tempfile
@@ -146,8 +147,11 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
     so = ort.SessionOptions()
     if threads:
         so.intra_op_num_threads = threads
+    chosen = None
     if fast:  # as Denoiser runs it: idle ORT workers sleep while a kernel runs
-        bridge.register_fast_kernels(so)
+        # the default bridge for the model's ops (the C++ library where it holds them all)
+        ops = {n.op_type for n in all_nodes(proto.graph) if n.domain == "rtdenoise"}
+        chosen = bridge.register_fast_kernels(so, None, ops)
         so.add_session_config_entry(ALLOW_SPINNING, "0")
     so.enable_profiling = True
     so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "ort")
@@ -164,7 +168,8 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
         feed[RESET] = np.array(1.0 if k == 0 else 0.0, np.float32)
         feed.update({s.input_name: state[s.name] for s in contract.state})
         t0 = time.perf_counter()
-        with bridge.numba_threads(kernel_thread_count((h, w), threads) if fast else None):
+        team = kernel_thread_count((h, w), threads)
+        with bridge.kernel_threads(chosen, team) if fast else contextlib.nullcontext():
             outs = session.run(None, feed)
         walls.append((time.perf_counter() - t0) * 1e3)
         named = dict(zip([o.name for o in session.get_outputs()], outs, strict=True))

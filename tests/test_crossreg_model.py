@@ -334,3 +334,22 @@ def test_alpha_min_bounds_what_the_history_contributes():
     assert far > 0 and near < 0.3 * far, (near, far)
     with pytest.raises(ValueError, match="alpha_min"):
         build_model("crossreg", {**SMALL, "alpha_min": 1.0})
+
+
+def test_the_online_step_traces_for_export():
+    """The export's symbolic trace of one frame (make_fx, models/online.py traced_step) goes
+    through: the offline-pretraining test on `freeze` (a graph input there) is not taken while
+    exporting (it stopped `denoise-export` of crossreg with a data-dependent guard)."""
+    from rtdenoise.export.onnx_export import (
+        ContractModule,
+        example_inputs,
+        example_size,
+        to_deploy,
+    )
+
+    deployed = to_deploy(CrossReg())
+    wrapper = ContractModule(deployed).eval()
+    h, w = example_size(deployed.pad_multiple)
+    step = deployed.export_module(wrapper, example_inputs(deployed, h, w))
+    ops = {str(n.target) for n in step.graph_module.graph.nodes if n.op == "call_function"}
+    assert any("cross_regression" in op for op in ops), sorted(ops)[:20]

@@ -1,6 +1,7 @@
 """Export pass `export.pow_as_exp`: x ** c with a constant fractional c becomes exp(c log x),
 equal to ORT's Pow within float32 rounding for every input but -inf (NaN there), NaN and inf
-where Pow gives them; integer exponents keep their Pow."""
+where Pow gives them; x ** 1 becomes Identity, bit for bit; other integer exponents keep their
+Pow."""
 
 from __future__ import annotations
 
@@ -62,3 +63,17 @@ def test_integer_exponents_keep_their_pow() -> None:
     before = model.SerializeToString()
     assert pow_as_exp(model) == []
     assert model.SerializeToString() == before
+
+
+def test_exponent_one_becomes_identity_bit_for_bit() -> None:
+    model = powers(1.0, 2.0, 1.0, dtype=np.float32)
+    special = [0.0, -0.0, -1.0, -3.5, 1.0, np.inf, -np.inf, np.nan, 1e-30, -1e-40, 1e4]
+    x = np.concatenate([special, np.random.default_rng(0).standard_normal(1000) * 50])
+    x = x.astype(np.float32)
+    before = run(model, x)
+    assert pow_as_exp(model) == ["pow0", "pow2"]
+    onnx.checker.check_model(model, full_check=True)
+    assert [n.op_type for n in model.graph.node] == ["Identity", "Pow", "Identity"]
+    assert sorted(i.name for i in model.graph.initializer) == ["c1"]  # c0, c2 unread: dropped
+    for got, want in zip(run(model, x), before, strict=True):
+        assert got.tobytes() == want.tobytes()

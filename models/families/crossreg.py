@@ -78,6 +78,7 @@ from ..base import DenoiserModel, FamilyConfig, StateSpec, register_family
 from ..online import Adam, ParameterLayout, adam_step, traced_step
 from ..ops.cross_bilateral_filter import cross_bilateral_filter
 from ..ops.cross_regression import cross_regression
+from ..ops.export_mode import use_custom_op
 from ..profiling import stage
 from ..reprojection import ReprojectionConfig, svgf_reproject
 
@@ -368,8 +369,11 @@ class CrossReg(DenoiserModel):
         # mode. Then theta_t keeps its graph through the Adam gate: frozen (`training_state`),
         # theta is the parameters on every frame of the clip; the history keeps its graph too.
         attached = theta.requires_grad
-        # frozen outer training: no online gradient to take (the gate would drop it)
-        skip_grad = attached and bool(state["freeze"].reshape(-1)[0] > 0.5)
+        # frozen outer training: no online gradient to take (the gate would drop it). Never
+        # while exporting: the trace (symbolic, models/online.py traced_step) sees the weights as
+        # attached too, and freeze is a graph input there, not a value to branch on (the export
+        # puts the backward under an If on it instead, export/learning_branch.py)
+        skip_grad = attached and not use_custom_op() and bool(state["freeze"].reshape(-1)[0] > 0.5)
         with torch.enable_grad():
             if not attached:
                 theta = theta.detach().requires_grad_(True)

@@ -1,6 +1,10 @@
 /* The kernels of rtdenoise_ops for demo:crossreg (Choi24): CrossRegression (float64
- * throughout, as every form of it) and CrossBilateralFilter (float32), the loops of
- * runtime/kernels/cross_regression.py and cross_bilateral_filter.py. Like numba's fastmath,
+ * throughout, as every form of it) and CrossBilateralFilter (float32), the arithmetic of
+ * runtime/kernels/cross_regression.py and cross_bilateral_filter.py, each sum adding the same
+ * terms in the same order, in a cache- and SIMD-friendlier loop order (CrossBilateralFilter in
+ * L1-sized chunks, CrossRegression 4 centres or pixels per lane; benchmarks/README.md,
+ * "crossreg's custom ops"). CrossRegression's exp is a vectorisable polynomial within ~1 ulp
+ * of std::exp's. Like numba's fastmath,
  * this file lets the compiler contract a multiply and an add into an FMA in the AVX2 and
  * AVX-512 clones; nothing is reassociated.
  *
@@ -55,6 +59,22 @@ const char *const CBF_IN[] = {"pilot_a", "pilot_b", "albedo", "normal", "band"};
 constexpr int64_t BANDS = 5;
 constexpr int64_t GUIDES = 12;  // pilot A, pilot B, albedo, normal: 3 channels each
 constexpr int64_t SUMS = 20;    // per pilot: [m f, m], then [m D_k f, m D_k] for 4 distances
+
+/* One output row's chunk of at most CBF_CHUNK pixels, all taps: the chunk's 40 sums (20 per
+ * pilot: [m f, m], then [m D_k f, m D_k] for k = colour, albedo, normal, position) stay in
+ * L1-sized local rows for the whole window, and each tap is one fused, branch-free loop over
+ * the chunk (the four squared distances, both exponents of eq. (9), both weights, the 40
+ * sums). Each sum adds the same terms in the same (iy, ix) order as the numba kernel
+ * (kernels/cross_bilateral_filter.py `_distances`, `exp_row`, `_accumulate`), which streams
+ * the whole row's 40 sums through the cache once per tap instead. */
+constexpr int64_t CBF_CHUNK = 64;
+
+struct CbfArgs {
+    const float *guides[4];  // pilot_a, pilot_b, albedo, normal (N, 3, H, W)
+    const float *band;       // (N, 5, H, W)
+    float *sum_a, *sum_b, *dsum_a, *dsum_b;
+    int64_t h, w, window;
+};
 
 /* kernels/common.py exp_row: exp(arg) for arg <= 0 (2^k from the exponent bits, 2^f from a
  * degree-6 polynomial). */
@@ -147,54 +167,66 @@ RTD_INLINE void accumulate(const float *RESTRICT f, int64_t wp, const float *RES
     }
 }
 
-struct CbfArgs {
-    const float *guides[4];  // pilot_a, pilot_b, albedo, normal (N, 3, H, W)
-    const float *band;       // (N, 5, H, W)
-    float *sum_a, *sum_b, *dsum_a, *dsum_b;
-    int64_t h, w, window;
-};
-
 RTD_CLONES void cbf_rows(const CbfArgs &a, int64_t begin, int64_t end) {
-    const int64_t h = a.h, w = a.w, hw = h * w, r = a.window / 2, wp = w + 2 * r;
+    constexpr int64_t C = CBF_CHUNK;
+    const int64_t h = a.h, w = a.w, r = a.window / 2, pw = C + 2 * r;  // pw: a pad row
     const float inv_r2 = static_cast<float>(1.0 / static_cast<double>(r * r));
-    std::vector<float> buffer(static_cast<size_t>(GUIDES * wp + 2 * SUMS * w + 8 * w));
-    std::vector<int64_t> sx_of(static_cast<size_t>(wp));
-    float *pad = buffer.data(), *acc_a = pad + GUIDES * wp, *acc_b = acc_a + SUMS * w;
-    float *d = acc_b + SUMS * w, *arg_a = d + 4 * w, *arg_b = arg_a + w, *m_a = arg_b + w,
-          *m_b = m_a + w;
-    for (int64_t x = 0; x < wp; ++x) sx_of[static_cast<size_t>(x)] = mirror(x - r, w);
+    // pad: the 12 guide rows of the chunk and its margins; cen: the 12 centre rows; bnd: the
+    // 5 band rows; acc: 2 x 20 sums; d, arg, m: one tap's distances, exponents, weights
+    std::vector<float> buffer(static_cast<size_t>(GUIDES * pw + (GUIDES + BANDS + 2 * SUMS + 8) * C));
+    float *pad = buffer.data(), *cen_rows = pad + GUIDES * pw, *bnd = cen_rows + GUIDES * C,
+          *acc_a = bnd + BANDS * C, *acc_b = acc_a + SUMS * C, *d = acc_b + SUMS * C,
+          *arg_a = d + 4 * C, *arg_b = arg_a + C, *m_a = arg_b + C, *m_b = m_a + C;
+    const float *cen[GUIDES];
+    for (int64_t g = 0; g < GUIDES; ++g) cen[g] = cen_rows + g * C;
+    // a chunk's pad column x reads image column sx_of[x0 + x] (mirrored); past the image's
+    // last chunk it repeats the last column (those pixels are computed and dropped)
+    std::vector<int64_t> sx_of(static_cast<size_t>(w + C + 2 * r));
+    for (int64_t x = 0; x < w + C + 2 * r; ++x)
+        sx_of[static_cast<size_t>(x)] = x - r < w + r ? mirror(x - r, w) : mirror(w - 1 + r, w);
     for (int64_t row = begin; row < end; ++row) {
         const int64_t n = row / h, y = row - n * h;
-        const float *cen[GUIDES];  // the centre pixels of row y
-        for (int64_t g = 0; g < 4; ++g)
-            for (int64_t c = 0; c < 3; ++c) cen[g * 3 + c] = a.guides[g] + ((n * 3 + c) * h + y) * w;
-        const float *band = a.band + (n * BANDS * h + y) * w;  // channel b at band + b h w
-        std::fill(acc_a, acc_a + 2 * SUMS * w, 0.0f);
-        for (int64_t iy = 0; iy < a.window; ++iy) {
-            const int64_t sy = mirror(y + iy - r, h);
+        for (int64_t x0 = 0; x0 < w; x0 += C) {
+            const int64_t cw = std::min<int64_t>(C, w - x0);  // the chunk's image pixels
             for (int64_t g = 0; g < 4; ++g)
                 for (int64_t c = 0; c < 3; ++c) {
-                    const float *RESTRICT src = a.guides[g] + ((n * 3 + c) * h + sy) * w;
-                    float *RESTRICT dst = pad + (g * 3 + c) * wp;
-                    for (int64_t x = 0; x < wp; ++x) dst[x] = src[sx_of[static_cast<size_t>(x)]];
+                    const float *src = a.guides[g] + ((n * 3 + c) * h + y) * w + x0;
+                    std::copy_n(src, cw, cen_rows + (g * 3 + c) * C);
+                    std::fill(cen_rows + (g * 3 + c) * C + cw, cen_rows + (g * 3 + c + 1) * C, src[cw - 1]);
                 }
-            for (int64_t ix = 0; ix < a.window; ++ix) {
-                const float dist_p =
-                    static_cast<float>((iy - r) * (iy - r) + (ix - r) * (ix - r)) * inv_r2;
-                distances(pad, wp, cen, band, hw, ix, dist_p, d, arg_a, arg_b, w);
-                exp_row(m_a, arg_a, w);
-                exp_row(m_b, arg_b, w);
-                accumulate(pad + ix, wp, m_a, d, d + 2 * w, d + 3 * w, dist_p, acc_a, w);
-                accumulate(pad + 3 * wp + ix, wp, m_b, d + w, d + 2 * w, d + 3 * w, dist_p, acc_b, w);
+            for (int64_t b = 0; b < BANDS; ++b) {
+                const float *src = a.band + ((n * BANDS + b) * h + y) * w + x0;
+                std::copy_n(src, cw, bnd + b * C);
+                std::fill(bnd + b * C + cw, bnd + (b + 1) * C, src[cw - 1]);
             }
-        }
-        for (int64_t c = 0; c < 4; ++c) {
-            std::copy(acc_a + c * w, acc_a + (c + 1) * w, a.sum_a + ((n * 4 + c) * h + y) * w);
-            std::copy(acc_b + c * w, acc_b + (c + 1) * w, a.sum_b + ((n * 4 + c) * h + y) * w);
-        }
-        for (int64_t c = 0; c < 16; ++c) {
-            std::copy(acc_a + (4 + c) * w, acc_a + (5 + c) * w, a.dsum_a + ((n * 16 + c) * h + y) * w);
-            std::copy(acc_b + (4 + c) * w, acc_b + (5 + c) * w, a.dsum_b + ((n * 16 + c) * h + y) * w);
+            std::fill(acc_a, acc_a + 2 * SUMS * C, 0.0f);
+            for (int64_t iy = 0; iy < a.window; ++iy) {
+                const int64_t sy = mirror(y + iy - r, h);
+                for (int64_t g = 0; g < 4; ++g)
+                    for (int64_t c = 0; c < 3; ++c) {
+                        const float *RESTRICT src = a.guides[g] + ((n * 3 + c) * h + sy) * w;
+                        float *RESTRICT dst = pad + (g * 3 + c) * pw;
+                        const int64_t *RESTRICT sx = sx_of.data() + x0;
+                        for (int64_t x = 0; x < pw; ++x) dst[x] = src[sx[x]];
+                    }
+                for (int64_t ix = 0; ix < a.window; ++ix) {
+                    const float dist_p =
+                        static_cast<float>((iy - r) * (iy - r) + (ix - r) * (ix - r)) * inv_r2;
+                    distances(pad, pw, cen, bnd, C, ix, dist_p, d, arg_a, arg_b, C);
+                    exp_row(m_a, arg_a, C);
+                    exp_row(m_b, arg_b, C);
+                    accumulate(pad + ix, pw, m_a, d, d + 2 * C, d + 3 * C, dist_p, acc_a, C);
+                    accumulate(pad + 3 * pw + ix, pw, m_b, d + C, d + 2 * C, d + 3 * C, dist_p, acc_b, C);
+                }
+            }
+            for (int64_t c = 0; c < 4; ++c) {
+                std::copy_n(acc_a + c * C, cw, a.sum_a + ((n * 4 + c) * h + y) * w + x0);
+                std::copy_n(acc_b + c * C, cw, a.sum_b + ((n * 4 + c) * h + y) * w + x0);
+            }
+            for (int64_t c = 0; c < 16; ++c) {
+                std::copy_n(acc_a + (4 + c) * C, cw, a.dsum_a + ((n * 16 + c) * h + y) * w + x0);
+                std::copy_n(acc_b + (4 + c) * C, cw, a.dsum_b + ((n * 16 + c) * h + y) * w + x0);
+            }
         }
     }
 }
@@ -206,31 +238,54 @@ constexpr int64_t P = 6;
 constexpr int64_t NQ = 14;  // y (3), albedo (3), normal (3), sigma, var, target (3)
 constexpr int64_t NSUM = 61;
 
+constexpr int64_t L = 4;  // lanes: centres (regression) or pixels (reconstruction) at once
+
+/* The planes q (y, albedo, normal, sigma, var, target) of regression b are kept in a
+ * phase-split, mirror-padded layout: padded column xp = x + R (R = stride * ceil(r / stride)
+ * >= r, so that every window of a centre and every covering centre of a pixel lies inside)
+ * is stored at phase xp % stride, position xp / stride. Pixels stride apart are then
+ * neighbours: the same tap of L consecutive centres, the same phase of L pixels, and their L
+ * covering centres are contiguous loads (the vectorised lanes below). */
 struct CrArgs {
     const float *y_a, *y_b, *albedo, *normal;
     float *pilot_a, *pilot_b;
     int64_t n, h, w, window, stride, hc, wc, lo, hi;
-    double *q;     // (2N, 14, H, W)
-    double *beta;  // (2N, Hc, Wc, 3, 6)
+    int64_t rb;      // R / stride
+    int64_t xx;      // positions per phase of a padded row (a row: stride * xx)
+    double *q;       // (2N, 14, H, stride, xx)
+    int64_t bm, bw;  // beta: (2N, Hc, 3, 6, bw), centre j at bm + j, the margins 0
+    double *beta;
+    int64_t row() const { return stride * xx; }
+    int64_t at(int64_t x) const {  // a row's offset of pixel column x, -R <= x < W + R
+        const int64_t xp = x + rb * stride;
+        return (xp % stride) * xx + xp / stride;
+    }
 };
 
 /* kernels/cross_regression.py _stack: q of regression b (A's variables against y^B for
- * b < N, then B's against y^A), var over the in-image 3x3 neighbours. */
+ * b < N, then B's against y^A), var over the in-image 3x3 neighbours; the padded columns
+ * repeat their mirrored pixel (as the other forms read mirror(x)). */
 RTD_CLONES void cr_stack(const CrArgs &a, int64_t begin, int64_t end) {
-    const int64_t n_img = a.n, h = a.h, w = a.w, hw = h * w;
+    const int64_t n_img = a.n, h = a.h, w = a.w, hw = h * w, row_len = a.row(), rs = a.rb * a.stride;
+    std::vector<double> tmp(static_cast<size_t>(NQ * w));
+    std::vector<int64_t> src_of(static_cast<size_t>(row_len)), dst_of(static_cast<size_t>(row_len));
+    for (int64_t xp = 0; xp < row_len; ++xp) {
+        src_of[static_cast<size_t>(xp)] = mirror(xp - rs, w);
+        dst_of[static_cast<size_t>(xp)] = (xp % a.stride) * a.xx + xp / a.stride;
+    }
     for (int64_t row = begin; row < end; ++row) {
         const int64_t b = row / h, yy = row - b * h, m = b % n_img;
         const float *y = (b < n_img ? a.y_a : a.y_b) + m * 3 * hw;
         const float *target = (b < n_img ? a.y_b : a.y_a) + m * 3 * hw;
         const float *albedo = a.albedo + m * 3 * hw, *normal = a.normal + m * 3 * hw;
-        double *q = a.q + b * NQ * hw;
+        double *t = tmp.data();
         for (int64_t c = 0; c < 3; ++c)
             for (int64_t x = 0; x < w; ++x) {
                 const int64_t at = c * hw + yy * w + x;
-                q[c * hw + yy * w + x] = y[at];
-                q[(3 + c) * hw + yy * w + x] = albedo[at];
-                q[(6 + c) * hw + yy * w + x] = normal[at];
-                q[(11 + c) * hw + yy * w + x] = target[at];
+                t[c * w + x] = y[at];
+                t[(3 + c) * w + x] = albedo[at];
+                t[(6 + c) * w + x] = normal[at];
+                t[(11 + c) * w + x] = target[at];
             }
         const int64_t y0 = std::max<int64_t>(0, yy - 1), y1 = std::min<int64_t>(h, yy + 2);
         for (int64_t x = 0; x < w; ++x) {
@@ -245,69 +300,49 @@ RTD_CLONES void cr_stack(const CrArgs &a, int64_t begin, int64_t end) {
                 const double dv = centre - (total - centre) / static_cast<double>(count);
                 var += dv * dv;
             }
-            q[9 * hw + yy * w + x] = std::sqrt(var);
-            q[10 * hw + yy * w + x] = var;
+            t[9 * w + x] = std::sqrt(var);
+            t[10 * w + x] = var;
+        }
+        for (int64_t k = 0; k < NQ; ++k) {
+            double *dst = a.q + ((b * NQ + k) * h + yy) * row_len;
+            const double *src = t + k * w;
+            for (int64_t xp = 0; xp < row_len; ++xp)
+                dst[dst_of[static_cast<size_t>(xp)]] = src[src_of[static_cast<size_t>(xp)]];
         }
     }
 }
 
-/* kernels/cross_regression.py _centre_sums: the 61 distinct sums of X^T W X and X^T W y over
- * the mirrored window of centre (cy, cx), in local accumulators. */
-RTD_INLINE void centre_sums(const double *q, int64_t h, int64_t w, int64_t cy, int64_t cx, int64_t r,
-                            double *RESTRICT acc) {
-    const int64_t hw = h * w, at = cy * w + cx;
-    const double c0 = q[at], c1 = q[hw + at], c2 = q[2 * hw + at];
-    const double ca[3] = {q[3 * hw + at], q[4 * hw + at], q[5 * hw + at]};
-    const double cn0 = q[6 * hw + at], cn1 = q[7 * hw + at], cn2 = q[8 * hw + at];
-    const double csig = q[9 * hw + at], cvar = q[10 * hw + at];
-    for (int64_t k = 0; k < NSUM; ++k) acc[k] = 0.0;
-    for (int64_t dy = -r; dy <= r; ++dy) {
-        const int64_t sy = mirror(cy + dy, h);
-        for (int64_t dx = -r; dx <= r; ++dx) {
-            const int64_t s = sy * w + mirror(cx + dx, w);
-            const double d0 = q[s] - c0, d1 = q[hw + s] - c1, d2 = q[2 * hw + s] - c2;
-            double wgt = std::exp(-(d0 * d0 + d1 * d1 + d2 * d2) / (cvar + q[10 * hw + s] + 1e-4));
-            wgt += 1e-7;
-            const double inv = 1.0 / (csig + q[9 * hw + s] + 1e-2);
-            const double n0 = q[6 * hw + s] - cn0, n1 = q[7 * hw + s] - cn1, n2 = q[8 * hw + s] - cn2;
-            const double wn0 = wgt * n0, wn1 = wgt * n1, wn2 = wgt * n2;
-            acc[0] += wgt;
-            acc[1] += wn0;
-            acc[2] += wn1;
-            acc[3] += wn2;
-            acc[4] += wn0 * n0;
-            acc[5] += wn0 * n1;
-            acc[6] += wn0 * n2;
-            acc[7] += wn1 * n1;
-            acc[8] += wn1 * n2;
-            acc[9] += wn2 * n2;
-            const double dc[3] = {d0, d1, d2};
-            for (int64_t c = 0; c < 3; ++c) {
-                const double x1 = dc[c] * inv;
-                const double x2 = q[(3 + c) * hw + s] - ca[c];
-                const double t = q[(11 + c) * hw + s];
-                const double wx1 = wgt * x1, wx2 = wgt * x2, wt = wgt * t;
-                double *RESTRICT k = acc + 10 + 17 * c;
-                k[0] += wx1;
-                k[1] += wx2;
-                k[2] += wx1 * x1;
-                k[3] += wx1 * x2;
-                k[4] += wx2 * x2;
-                k[5] += wx1 * n0;
-                k[6] += wx1 * n1;
-                k[7] += wx1 * n2;
-                k[8] += wx2 * n0;
-                k[9] += wx2 * n1;
-                k[10] += wx2 * n2;
-                k[11] += wt;
-                k[12] += wx1 * t;
-                k[13] += wx2 * t;
-                k[14] += wt * n0;
-                k[15] += wt * n1;
-                k[16] += wt * n2;
-            }
-        }
-    }
+/* exp(v) for v <= 0 in double precision, in branch-free arithmetic that vectorises (std::exp
+ * does not): v = k ln 2 + f (k = round(v log2 e) by the 1.5 * 2^52 shift, Cody-Waite ln 2),
+ * exp(f) by its Taylor series to f^13 / 13! (|f| <= ln2 / 2: truncation below 1e-17), 2^k
+ * from the exponent bits. Within about 1 ulp of std::exp; arguments below -708 give
+ * exp(-708) ~ 3e-308, which every caller adds to 1e-7 (the weights' floor), as it does 0. */
+RTD_INLINE double exp_nonpos(double v) {
+    v = v > -708.0 ? v : -708.0;
+    const double shifter = 6755399441055744.0;  // 1.5 * 2^52
+    const double t = v * 1.4426950408889634 + shifter;
+    const double k = t - shifter;
+    const double f = (v - k * 6.93147180369123816490e-01) - k * 1.90821492927058770002e-10;
+    double p = 1.0 / 6227020800.0;
+    p = p * f + 1.0 / 479001600.0;
+    p = p * f + 1.0 / 39916800.0;
+    p = p * f + 1.0 / 3628800.0;
+    p = p * f + 1.0 / 362880.0;
+    p = p * f + 1.0 / 40320.0;
+    p = p * f + 1.0 / 5040.0;
+    p = p * f + 1.0 / 720.0;
+    p = p * f + 1.0 / 120.0;
+    p = p * f + 1.0 / 24.0;
+    p = p * f + 1.0 / 6.0;
+    p = p * f + 0.5;
+    p = p * f + 1.0;
+    p = p * f + 1.0;
+    int64_t bits;
+    std::memcpy(&bits, &t, sizeof bits);  // 0x4338... + k: its low 12 bits are k mod 4096
+    bits = static_cast<int64_t>(static_cast<uint64_t>(bits + 1023) << 52);
+    double scale;
+    std::memcpy(&scale, &bits, sizeof scale);
+    return p * scale;
 }
 
 /* kernels/cross_regression.py _solve: beta (6) of channel c, a Cholesky solve of the ridge
@@ -358,66 +393,201 @@ RTD_INLINE void solve(const double *acc, int64_t c, double *RESTRICT beta) {
     }
 }
 
-/* kernels/cross_regression.py _regress: tasks (regression b, centre row i). */
+/* One window row's tap variables, per lane: [w, n0, n1, n2, x1 (3 channels), x2 (3), t (3)]. */
+constexpr int64_t NV = 13;
+constexpr int64_t SEG = 32;  // taps per pass
+
+/* The 10 sums shared by the channels over `taps` taps, in their order (`_centre_sums`). */
+RTD_INLINE void sums_shared(const double (*RESTRICT v)[NV][L], int64_t taps, double (*RESTRICT acc)[L]) {
+    alignas(32) double s[10][L];
+    for (int64_t i = 0; i < 10; ++i)
+        for (int64_t l = 0; l < L; ++l) s[i][l] = acc[i][l];
+    for (int64_t t = 0; t < taps; ++t)
+        for (int64_t l = 0; l < L; ++l) {
+            const double wgt = v[t][0][l], n0 = v[t][1][l], n1 = v[t][2][l], n2 = v[t][3][l];
+            const double wn0 = wgt * n0, wn1 = wgt * n1, wn2 = wgt * n2;
+            s[0][l] += wgt;
+            s[1][l] += wn0;
+            s[2][l] += wn1;
+            s[3][l] += wn2;
+            s[4][l] += wn0 * n0;
+            s[5][l] += wn0 * n1;
+            s[6][l] += wn0 * n2;
+            s[7][l] += wn1 * n1;
+            s[8][l] += wn1 * n2;
+            s[9][l] += wn2 * n2;
+        }
+    for (int64_t i = 0; i < 10; ++i)
+        for (int64_t l = 0; l < L; ++l) acc[i][l] = s[i][l];
+}
+
+/* Channel c's 17 sums over `taps` taps, in their order. */
+RTD_INLINE void sums_channel(const double (*RESTRICT v)[NV][L], int64_t taps, int64_t c,
+                             double (*RESTRICT k)[L]) {
+    alignas(32) double s[17][L];
+    for (int64_t i = 0; i < 17; ++i)
+        for (int64_t l = 0; l < L; ++l) s[i][l] = k[i][l];
+    for (int64_t t = 0; t < taps; ++t)
+        for (int64_t l = 0; l < L; ++l) {
+            const double wgt = v[t][0][l], n0 = v[t][1][l], n1 = v[t][2][l], n2 = v[t][3][l];
+            const double x1 = v[t][4 + c][l], x2 = v[t][7 + c][l], tg = v[t][10 + c][l];
+            const double wx1 = wgt * x1, wx2 = wgt * x2, wt = wgt * tg;
+            s[0][l] += wx1;
+            s[1][l] += wx2;
+            s[2][l] += wx1 * x1;
+            s[3][l] += wx1 * x2;
+            s[4][l] += wx2 * x2;
+            s[5][l] += wx1 * n0;
+            s[6][l] += wx1 * n1;
+            s[7][l] += wx1 * n2;
+            s[8][l] += wx2 * n0;
+            s[9][l] += wx2 * n1;
+            s[10][l] += wx2 * n2;
+            s[11][l] += wt;
+            s[12][l] += wx1 * tg;
+            s[13][l] += wx2 * tg;
+            s[14][l] += wt * n0;
+            s[15][l] += wt * n1;
+            s[16][l] += wt * n2;
+        }
+    for (int64_t i = 0; i < 17; ++i)
+        for (int64_t l = 0; l < L; ++l) k[i][l] = s[i][l];
+}
+
+/* kernels/cross_regression.py _centre_sums and _regress: tasks (regression b, centre row i);
+ * per block of L consecutive centres (one lane each), the 61 distinct sums of X^T W X and
+ * X^T W y over the mirrored window (10 shared by the colour channels, 17 per channel), each
+ * lane adding its terms in the window's order, then a 6 x 6 Cholesky solve per channel. */
 RTD_CLONES void cr_regress(const CrArgs &a, int64_t begin, int64_t end) {
-    const int64_t h = a.h, w = a.w, hc = a.hc, wc = a.wc, r = a.window / 2;
-    double acc[NSUM];
+    const int64_t h = a.h, hc = a.hc, wc = a.wc, r = a.window / 2, s = a.stride, xx = a.xx;
+    const int64_t row_len = a.row(), plane = h * row_len, rs = a.rb * s;
+    alignas(32) double acc[NSUM][L];
+    double sums[NSUM], beta6[P];
+    alignas(32) double var[SEG][NV][L];  // the tap variables of up to SEG taps of a row
     for (int64_t task = begin; task < end; ++task) {
-        const int64_t b = task / hc, i = task - b * hc;
-        const double *q = a.q + b * NQ * h * w;
-        for (int64_t j = 0; j < wc; ++j) {
-            centre_sums(q, h, w, a.stride * i, a.stride * j, r, acc);
-            for (int64_t c = 0; c < 3; ++c) solve(acc, c, a.beta + (((b * hc + i) * wc + j) * 3 + c) * P);
+        const int64_t b = task / hc, i = task - b * hc, cy = s * i;
+        const double *q = a.q + b * NQ * plane;
+        for (int64_t j0 = 0; j0 < wc; j0 += L) {
+            // the centres' own values: phase 0, positions rb + j0 + l
+            alignas(32) double cv[11][L];
+            for (int64_t k = 0; k < 11; ++k)
+                for (int64_t l = 0; l < L; ++l) cv[k][l] = q[k * plane + cy * row_len + a.rb + j0 + l];
+            for (int64_t k = 0; k < NSUM; ++k)
+                for (int64_t l = 0; l < L; ++l) acc[k][l] = 0.0;
+            for (int64_t dy = -r; dy <= r; ++dy) {
+                const double *qr = q + mirror(cy + dy, h) * row_len;
+                for (int64_t dx0 = -r; dx0 <= r; dx0 += SEG) {
+                    const int64_t taps = std::min<int64_t>(SEG, r + 1 - dx0);
+                    // pass 1: each tap's weight and variables, per lane
+                    for (int64_t dx = dx0; dx < dx0 + taps; ++dx) {
+                        const double *RESTRICT qt = qr + ((dx + rs) % s) * xx + (dx + rs) / s + j0;
+                        double *RESTRICT v = &var[dx - dx0][0][0];
+                        for (int64_t l = 0; l < L; ++l) {
+                            const double d0 = qt[l] - cv[0][l], d1 = qt[plane + l] - cv[1][l],
+                                         d2 = qt[2 * plane + l] - cv[2][l];
+                            double wgt = exp_nonpos(-(d0 * d0 + d1 * d1 + d2 * d2) /
+                                                    (cv[10][l] + qt[10 * plane + l] + 1e-4));
+                            wgt += 1e-7;
+                            const double inv = 1.0 / (cv[9][l] + qt[9 * plane + l] + 1e-2);
+                            v[l] = wgt;
+                            v[L + l] = qt[6 * plane + l] - cv[6][l];
+                            v[2 * L + l] = qt[7 * plane + l] - cv[7][l];
+                            v[3 * L + l] = qt[8 * plane + l] - cv[8][l];
+                            v[4 * L + l] = d0 * inv;
+                            v[5 * L + l] = d1 * inv;
+                            v[6 * L + l] = d2 * inv;
+                            v[7 * L + l] = qt[3 * plane + l] - cv[3][l];
+                            v[8 * L + l] = qt[4 * plane + l] - cv[4][l];
+                            v[9 * L + l] = qt[5 * plane + l] - cv[5][l];
+                            v[10 * L + l] = qt[11 * plane + l];
+                            v[11 * L + l] = qt[12 * plane + l];
+                            v[12 * L + l] = qt[13 * plane + l];
+                        }
+                    }
+                    // pass 2: the sums, a few at a time over the taps (in registers)
+                    sums_shared(var, taps, acc);
+                    for (int64_t c = 0; c < 3; ++c) sums_channel(var, taps, c, acc + 10 + 17 * c);
+                }
+            }
+            for (int64_t l = 0; l < L && j0 + l < wc; ++l) {
+                for (int64_t k = 0; k < NSUM; ++k) sums[k] = acc[k][l];
+                for (int64_t c = 0; c < 3; ++c) {
+                    solve(sums, c, beta6);
+                    for (int64_t t = 0; t < P; ++t)
+                        a.beta[(((b * hc + i) * 3 + c) * P + t) * a.bw + a.bm + j0 + l] = beta6[t];
+                }
+            }
         }
     }
 }
 
 /* kernels/cross_regression.py _reconstruct: eq. (5) over the covering centres, clamped >= 0,
- * rows of regression b into pilot_a (b < N) or pilot_b. */
+ * rows of regression b into pilot_a (b < N) or pilot_b. The pixels x = stride m + ph of one
+ * phase ph go L at a time (one lane each): their covering centres are stride apart too and
+ * pass the window test together; a centre outside the grid (near the left and right edges)
+ * adds nothing to its lane, as it is skipped in the other forms. */
 RTD_CLONES void cr_reconstruct(const CrArgs &a, int64_t begin, int64_t end) {
     const int64_t h = a.h, w = a.w, hw = h * w, hc = a.hc, wc = a.wc, r = a.window / 2;
-    const int64_t stride = a.stride, lo = a.lo, hi = a.hi;
+    const int64_t s = a.stride, lo = a.lo, hi = a.hi, row_len = a.row(), plane = h * row_len;
     for (int64_t row = begin; row < end; ++row) {
         const int64_t b = row / h, y = row - b * h;
-        const double *q = a.q + b * NQ * hw;
+        const double *q = a.q + b * NQ * plane;
         float *pilot = b < a.n ? a.pilot_a + b * 3 * hw : a.pilot_b + (b - a.n) * 3 * hw;
-        for (int64_t x = 0; x < w; ++x) {
-            const int64_t p = y * w + x;
-            const double p0 = q[p], p1 = q[hw + p], p2 = q[2 * hw + p];
-            const double psig = q[9 * hw + p], pvar = q[10 * hw + p];
-            double num0 = 0.0, num1 = 0.0, num2 = 0.0, den = 0.0;
-            for (int64_t dj = -lo; dj <= hi; ++dj) {
-                const int64_t jy = y / stride + dj;
-                if (jy < 0 || jy >= hc || std::abs(y - stride * jy) > r) continue;
-                const int64_t cy = stride * jy;
-                for (int64_t di = -lo; di <= hi; ++di) {
-                    const int64_t ix = x / stride + di;
-                    if (ix < 0 || ix >= wc || std::abs(x - stride * ix) > r) continue;
-                    const int64_t cx = stride * ix, c_at = cy * w + cx;
-                    const double dy0 = p0 - q[c_at], dy1 = p1 - q[hw + c_at], dy2 = p2 - q[2 * hw + c_at];
-                    const double spread = q[10 * hw + c_at] + pvar + 1e-4;
-                    const double wgt = std::exp(-(dy0 * dy0 + dy1 * dy1 + dy2 * dy2) / spread) + 1e-7;
-                    const double inv = 1.0 / (q[9 * hw + c_at] + psig + 1e-2);
-                    const double n0 = q[6 * hw + p] - q[6 * hw + c_at];
-                    const double n1 = q[7 * hw + p] - q[7 * hw + c_at];
-                    const double n2 = q[8 * hw + p] - q[8 * hw + c_at];
-                    const double dyc[3] = {dy0, dy1, dy2};
-                    double *num[3] = {&num0, &num1, &num2};
-                    for (int64_t c = 0; c < 3; ++c) {
-                        const double *co = a.beta + (((b * hc + jy) * wc + ix) * 3 + c) * P;
-                        const double x2 = q[(3 + c) * hw + p] - q[(3 + c) * hw + c_at];
-                        double pred = co[0] + co[1] * dyc[c] * inv + co[2] * x2;
-                        pred += co[3] * n0 + co[4] * n1 + co[5] * n2;
-                        *num[c] += wgt * pred;
+        for (int64_t ph = 0; ph < s && ph < w; ++ph) {
+            const int64_t count = (w - ph + s - 1) / s;  // pixels of this phase
+            const double *qp = q + y * row_len + ((ph + a.rb * s) % s) * a.xx + (ph + a.rb * s) / s;
+            for (int64_t m0 = 0; m0 < count; m0 += L) {
+                alignas(32) double num0[L] = {}, num1[L] = {}, num2[L] = {}, den[L] = {};
+                const double *RESTRICT pv = qp + m0;  // pixel m0 + l at pv[k * plane + l]
+                for (int64_t dj = -lo; dj <= hi; ++dj) {
+                    const int64_t jy = y / s + dj;
+                    if (jy < 0 || jy >= hc || std::abs(y - s * jy) > r) continue;
+                    const int64_t cy = s * jy;
+                    for (int64_t di = -lo; di <= hi; ++di) {
+                        if (std::abs(ph - s * di) > r) continue;  // |x - stride ix| of every lane
+                        const int64_t ix0 = m0 + di;  // lane l's centre: ix0 + l
+                        const double *RESTRICT cq = q + cy * row_len + a.rb + ix0;  // phase 0
+                        const double *RESTRICT co = a.beta + ((b * hc + jy) * 3 * P) * a.bw + a.bm + ix0;
+                        alignas(32) double inside[L];  // 1 for a centre of the grid, 0 outside
+                        for (int64_t l = 0; l < L; ++l) inside[l] = ix0 + l >= 0 && ix0 + l < wc ? 1.0 : 0.0;
+                        for (int64_t l = 0; l < L; ++l) {
+                            const double in = inside[l];
+                            const double dy0 = pv[l] - cq[l], dy1 = pv[plane + l] - cq[plane + l],
+                                         dy2 = pv[2 * plane + l] - cq[2 * plane + l];
+                            const double spread = cq[10 * plane + l] + pv[10 * plane + l] + 1e-4;
+                            const double wgt =
+                                (exp_nonpos(-(dy0 * dy0 + dy1 * dy1 + dy2 * dy2) / spread) + 1e-7) * in;
+                            const double inv = 1.0 / (cq[9 * plane + l] + pv[9 * plane + l] + 1e-2);
+                            const double n0 = pv[6 * plane + l] - cq[6 * plane + l];
+                            const double n1 = pv[7 * plane + l] - cq[7 * plane + l];
+                            const double n2 = pv[8 * plane + l] - cq[8 * plane + l];
+                            const double dyc[3] = {dy0, dy1, dy2};
+                            double pred[3];
+                            for (int64_t c = 0; c < 3; ++c) {
+                                const double *RESTRICT cc = co + c * P * a.bw;
+                                const double x2 = pv[(3 + c) * plane + l] - cq[(3 + c) * plane + l];
+                                double v = cc[l] + cc[a.bw + l] * dyc[c] * inv + cc[2 * a.bw + l] * x2;
+                                v += cc[3 * a.bw + l] * n0 + cc[4 * a.bw + l] * n1 + cc[5 * a.bw + l] * n2;
+                                pred[c] = v;
+                            }
+                            // a centre outside adds (+-)0 (its terms are finite): the sums do not
+                            // change, as where the other forms skip it
+                            num0[l] += wgt * pred[0];
+                            num1[l] += wgt * pred[1];
+                            num2[l] += wgt * pred[2];
+                            den[l] += wgt;
+                        }
                     }
-                    den += wgt;
+                }
+                for (int64_t l = 0; l < L && m0 + l < count; ++l) {
+                    const int64_t p = y * w + s * (m0 + l) + ph;
+                    // numba's max(v, 0.0): 0 where 0 > v, else v (NaN stays NaN)
+                    const double v0 = num0[l] / den[l], v1 = num1[l] / den[l], v2 = num2[l] / den[l];
+                    pilot[p] = static_cast<float>(0.0 > v0 ? 0.0 : v0);
+                    pilot[hw + p] = static_cast<float>(0.0 > v1 ? 0.0 : v1);
+                    pilot[2 * hw + p] = static_cast<float>(0.0 > v2 ? 0.0 : v2);
                 }
             }
-            // numba's max(v, 0.0): 0 where 0 > v, else v (NaN stays NaN)
-            const double v0 = num0 / den, v1 = num1 / den, v2 = num2 / den;
-            pilot[p] = static_cast<float>(0.0 > v0 ? 0.0 : v0);
-            pilot[hw + p] = static_cast<float>(0.0 > v1 ? 0.0 : v1);
-            pilot[2 * hw + p] = static_cast<float>(0.0 > v2 ? 0.0 : v2);
         }
     }
 }
@@ -488,10 +658,16 @@ void cross_regression_run(const Tensor *in, Tensor *out, const int64_t *attrs, i
     a.hc = (a.h + a.stride - 1) / a.stride, a.wc = (a.w + a.stride - 1) / a.stride;
     const int64_t r = a.window / 2;  // ops/cross_regression.py reconstruction_offsets
     a.lo = r / a.stride, a.hi = (r + a.stride - 1) / a.stride;
+    a.rb = a.hi;  // ceil(r / stride)
+    // every read of a lane stays inside: centres j + rb + (dx + R) / stride < wc + 2 rb + L,
+    // pixels and covering centres below that too
+    a.xx = a.wc + 2 * a.rb + L + 2;
+    a.bm = a.lo + 1, a.bw = a.wc + a.lo + a.hi + L + 2;
     const int64_t nb = 2 * a.n, hw = a.h * a.w;
-    // not zero-filled: every element is written before it is read
-    std::unique_ptr<double[]> q(new double[static_cast<size_t>(nb * NQ * hw)]);
-    std::unique_ptr<double[]> beta(new double[static_cast<size_t>(nb * a.hc * a.wc * 3 * P)]);
+    // q: not zero-filled, every element is written before it is read; beta: its margins are
+    // read by lanes whose centre lies outside the grid (their terms are dropped), zeros
+    std::unique_ptr<double[]> q(new double[static_cast<size_t>(nb * NQ * a.h * a.row())]);
+    std::unique_ptr<double[]> beta(new double[static_cast<size_t>(nb * a.hc * 3 * P * a.bw)]());
     a.q = q.get(), a.beta = beta.get();
     parallel_for(nb * a.h, threads, nb * hw * 64,
                  [&](int64_t b, int64_t e) { cr_stack(a, b, e); });
