@@ -28,22 +28,22 @@ import numpy as np  # noqa: E402
 import onnx  # noqa: E402
 import onnxruntime as ort  # noqa: E402
 
-from rtdenoise.export.learning_branch import all_nodes  # noqa: E402
 from rtdenoise.runtime import bridge  # noqa: E402
 from rtdenoise.runtime.contract import RESET, contract_from_session  # noqa: E402
 from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
 from rtdenoise.runtime.session import ALLOW_SPINNING, kernel_thread_count, resolve_model  # noqa: E402
+from rtdenoise.runtime.static_check import custom_op_types  # noqa: E402
 
 
 def profile(model: str, size: tuple[int, int], frames: int, threads: int | None):
-    proto = onnx.load(str(resolve_model(model)))
+    data = resolve_model(model).read_bytes()
+    proto = onnx.load_from_string(data)
     so = ort.SessionOptions()
     if threads:
         so.intra_op_num_threads = threads
     # the model's ops: the default bridge for them (the C++ library where it holds them all),
     # as Denoiser picks it; with no ops named the numba kernels would run
-    ops = {n.op_type for n in all_nodes(proto.graph) if n.domain == "rtdenoise"}
-    chosen = bridge.register_fast_kernels(so, None, ops)
+    chosen = bridge.register_fast_kernels(so, None, custom_op_types(data))
     print(f"# fast kernels: {chosen}")
     so.add_session_config_entry(ALLOW_SPINNING, "0")
     so.enable_profiling = True

@@ -126,6 +126,13 @@ def bench_stages(
     repeats: TimedFrames = 3,
     threads: Threads = None,
     json_path: JsonOut = None,
+    portable: Annotated[
+        bool,
+        typer.Option(
+            "--portable/--no-portable",
+            help="Also the whole frame in ORT portable (slow at 720p for crossreg).",
+        ),
+    ] = True,
 ) -> None:
     """Time each stage of one frame (regression, U-Net, filter, backward + Adam, other) in
     PyTorch eager and ONNX Runtime with the fast kernels (its node profiler), and the whole
@@ -150,7 +157,13 @@ def bench_stages(
                 say("exporting")
                 onnx_bytes = export_model(net).SerializeToString()
             result = benchmark_stages(
-                net, onnx_bytes, (h, w), repeats=repeats, threads=threads, progress=say
+                net,
+                onnx_bytes,
+                (h, w),
+                repeats=repeats,
+                threads=threads,
+                progress=say,
+                portable=portable,
             )
     table = Table(title=f"{net.family} at {w}x{h}, median ms per frame ({repeats} frames)")
     table.add_column("stage")

@@ -42,6 +42,7 @@ from rtdenoise.models.profiling import timed_stages
 from rtdenoise.runtime import bridge
 from rtdenoise.runtime.contract import RESET, contract_from_session
 from rtdenoise.runtime.session import ALLOW_SPINNING, kernel_thread_count
+from rtdenoise.runtime.static_check import custom_op_types
 
 from .learning_branch import all_nodes, subgraphs
 from .validate import synthetic_frames
@@ -149,9 +150,8 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
         so.intra_op_num_threads = threads
     chosen = None
     if fast:  # as Denoiser runs it: idle ORT workers sleep while a kernel runs
-        # the default bridge for the model's ops (the C++ library where it holds them all)
-        ops = {n.op_type for n in all_nodes(proto.graph) if n.domain == "rtdenoise"}
-        chosen = bridge.register_fast_kernels(so, None, ops)
+        # the bridge Denoiser picks for the model's ops (the C++ library where it holds them all)
+        chosen = bridge.register_fast_kernels(so, None, custom_op_types(onnx_bytes))
         so.add_session_config_entry(ALLOW_SPINNING, "0")
     so.enable_profiling = True
     so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "ort")
@@ -211,18 +211,23 @@ def benchmark_stages(
     repeats: int = 3,
     threads: int | None = None,
     progress: Callable[[str], None] | None = None,
+    portable: bool = True,
 ) -> dict:
-    """{path: {"stages": {stage: ms}, "total": ms}} for torch, ort_fast and ort_portable."""
+    """{path: {"stages": {stage: ms}, "total": ms}} for torch, ort_fast and (with `portable`)
+    ort_portable."""
     say = progress or (lambda _msg: None)
     if threads:
         torch.set_num_threads(threads)
     frames = synthetic_frames(model.inputs, repeats + 1, *size)
     result = {}
-    for path, run in (
-        ("torch", lambda: _torch_times(model.eval(), frames)),
-        ("ort_fast", lambda: _ort_times(onnx_bytes, frames, True, threads)),
-        ("ort_portable", lambda: _ort_times(onnx_bytes, frames, False, threads)),
-    ):
+    paths = {
+        "torch": lambda: _torch_times(model.eval(), frames),
+        "ort_fast": lambda: _ort_times(onnx_bytes, frames, True, threads),
+        "ort_portable": lambda: _ort_times(onnx_bytes, frames, False, threads),
+    }
+    if not portable:
+        del paths["ort_portable"]
+    for path, run in paths.items():
         say(path)
         stages, total = run()
         # ORT inlines the portable function bodies under generated node names (and reports
