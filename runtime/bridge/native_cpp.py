@@ -4,7 +4,8 @@
 ONNX Runtime custom-op library: `RegisterCustomOps` adds its ops to the `rtdenoise` domain,
 and each runs its own forward kernel (the numba kernel's arithmetic, each pixel's terms in its
 order, blocked and vectorised differently; CrossRegression's exp a polynomial within about
-1 ulp of numba's, so within 1e-5, not bit for bit) on ORT's buffers, with its errors returned as ORT statuses naming the op and the cause. A C or C++
+1 ulp of numba's, so within 1e-5, not bit for bit) on ORT's buffers, with its errors returned
+as ORT statuses naming the op and the cause. A C or C++
 host loads the same file. From Python, this module finds it, says which ops it holds, and
 sets its thread count around a run (`threads`), as `numba_threads` does for numba.
 
