@@ -56,10 +56,10 @@
  * ORT's headers are not in the onnxruntime wheel, so the part of the C API used here is
  * declared below as runtime/bridge/native_ops/ort_abi.h declares it: positions in the OrtApi
  * function table, which is append-only, so a position never changes once a version has it.
- * All of them are within the first 125 entries, present since ORT 1.x's earliest versions;
- * GetApi(API_VERSION) returning a table at all asserts that this ORT has them. Checked against
- * onnxruntime_c_api.h (include/onnxruntime/core/session/), counting the members of
- * `struct OrtApi` from CreateStatus = 0.
+ * They are all among the first 125 entries, which the header of API version 13 already lists,
+ * so GetApi(API_VERSION = 20) returning a table asserts that this ORT has them. Checked against
+ * ORT's include/onnxruntime/core/session/onnxruntime_c_api.h (API versions 13 and 29),
+ * counting the members of `struct OrtApi` from CreateStatus = 0.
  */
 
 #include <dlfcn.h>
