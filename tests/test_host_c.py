@@ -3,7 +3,9 @@ shared library of the onnxruntime wheel, running demo:afn on the C++ custom-op l
 rtdenoise_ops with its state fed back and every buffer through the library's C input guard
 (rtdenoise_guard.h), matches `Denoiser` within 1e-5 over the committed sequence, and over it
 with frames polluted by NaN, +-Inf, out-of-range values, fireflies and a missing albedo pass
-(the same guard counts and history restarts, a finite output). Skipped, with the reason,
+(the same guard counts and history restarts, a finite output). It is given only the frame
+files and its command line: buffers, state, padding and names come from the model's metadata
+and graph, and a model without that metadata is refused naming the key. Skipped, with the reason,
 where the library was not built or there is no C compiler; the wheel's libonnxruntime is
 required (it ships in the Linux wheels)."""
 
