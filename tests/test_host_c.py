@@ -3,7 +3,9 @@ shared library of the onnxruntime wheel, running demo:afn on the C++ custom-op l
 rtdenoise_ops with its state fed back and every buffer through the library's C input guard
 (rtdenoise_guard.h), matches `Denoiser` within 1e-5 over the committed sequence, and over it
 with frames polluted by NaN, +-Inf, out-of-range values, fireflies and a missing albedo pass
-(the same guard counts and history restarts, a finite output). Skipped, with the reason,
+(the same guard counts and history restarts, a finite output). It is given only the frame
+files and its command line: buffers, state, padding and names come from the model's metadata
+and graph, and a model without that metadata is refused naming the key. Skipped, with the reason,
 where the library was not built or there is no C compiler; the wheel's libonnxruntime is
 required (it ships in the Linux wheels)."""
 
@@ -52,12 +54,20 @@ def build_host(tmp_path: Path) -> Path:
     exe = tmp_path / "host"
     include = Path(native_cpp.__file__).parent / "native_ops"  # rtdenoise_guard.h
     res = subprocess.run(
-        [cc, "-O2", "-Wall", f"-I{include}", "-o", str(exe), str(HOST), f"-L{libs}",
-         "-lonnxruntime", f"-Wl,-rpath,{libs}", "-ldl"],
+        [cc, "-O2", "-Wall", "-Wextra", "-Werror", f"-I{include}", "-o", str(exe), str(HOST),
+         f"-L{libs}", "-lonnxruntime", f"-Wl,-rpath,{libs}", "-ldl"],
         capture_output=True, text=True,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
     return exe
+
+
+def run_host(
+    exe: Path, model: Path | str, folder: Path, frames: int, h: int, w: int
+) -> subprocess.CompletedProcess:
+    """./host MODEL LIBRARY FOLDER FRAMES H W (examples/host_c/host.c's header)."""
+    args = [str(model), str(native_cpp.library_path()), str(folder), str(frames), str(h), str(w)]
+    return subprocess.run([str(exe), *args], capture_output=True, text=True, timeout=300)
 
 
 def polluted(frames: list[dict[str, np.ndarray]]) -> list[dict[str, np.ndarray]]:
@@ -105,40 +115,20 @@ def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path, pollu
     exe = build_host(tmp_path)
     den = Denoiser("demo:afn")
     assert den.bridge == "native-cpp"
-    meta = den.session.get_modelmeta().custom_metadata_map
-    buffers = json.loads(meta["rtdenoise.inputs"])["buffers"]
-    states = json.loads(meta["rtdenoise.state"])
-    pad = int(meta["rtdenoise.pad_multiple"])
-    inputs = {i.name for i in den.session.get_inputs()}
     frames = [read_frame(p).buffers for p in find_frames(sample_sequences()[0])][:8]
     if pollution == "polluted":
         frames = polluted(frames)
-    h, w = frames[0][buffers[0]].shape[-2:]
-    hp, wp = -(-h // pad) * pad, -(-w // pad) * pad
-    # the plan: what a host reads from the metadata (docs/contract.md, "Driving a model")
-    lines = [f"model {den.source}", f"library {native_cpp.library_path()}", f"frames {len(frames)}"]
-    lines.append(f"size {h} {w}")  # each f<t>.<buffer>.f32 holds the H x W frame
-    ins = [(b, (1, frames[0][b].shape[0], hp, wp)) for b in buffers]
-    if "reset" in inputs:
-        ins.append(("reset", ()))
-    lines.append(f"inputs {len(ins)}")
-    lines += [f"{n} {len(s)} {' '.join(map(str, s))}".strip() for n, s in ins]
-    lines.append(f"state {len(states)}")
-    for s in states:
-        shape = (1, s["channels"], *(s.get("size") or (hp // s["scale"], wp // s["scale"])))
-        lines.append(f"state.{s['name']} {len(shape)} {' '.join(map(str, shape))}")
-    lines.append(f"output output 4 1 3 {hp} {wp}")
-    (tmp_path / "plan.txt").write_text("\n".join(lines) + "\n")
+    h, w = frames[0]["color"].shape[-2:]
     for t, frame in enumerate(frames):  # unpadded: the host guards, then pads
-        for b in buffers:
-            np.ascontiguousarray(frame[b], np.float32).tofile(tmp_path / f"f{t}.{b}.f32")
-    res = subprocess.run(
-        [str(exe), str(tmp_path / "plan.txt"), str(tmp_path)],
-        capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+        for b, data in frame.items():  # every buffer: the host picks what the model lists
+            np.ascontiguousarray(data, np.float32).tofile(tmp_path / f"f{t}.{b}.f32")
+    # no plan: the host reads buffers, state, padding and names from the model itself
+    res = run_host(exe, den.source, tmp_path, len(frames), h, w)
     assert res.returncode == 0, res.stderr
     *guarded, last = res.stdout.strip().splitlines()
     assert last == f"{len(frames)} frames"
+    pad = den.pad_multiple
+    hp, wp = -(-h // pad) * pad, -(-w // pad) * pad
     expected_lines = []
     for t, frame in enumerate(frames):
         expected = den.process(frame)
@@ -151,3 +141,39 @@ def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path, pollu
     if pollution == "polluted":
         assert den.guard_totals.unusable_frames == 2 and den.guard_totals.outliers >= 2
         assert any("unusable albedo reset 1" in line for line in guarded)
+
+
+@pytest.mark.parametrize(
+    ("strip", "named"),
+    [
+        ("all", "metadata key rtdenoise.contract missing"),
+        ("rtdenoise.state", "metadata key rtdenoise.state missing"),
+        ("bad-state", 'metadata rtdenoise.state[1] has no key "channels"'),
+    ],
+)
+def test_c_host_refuses_a_model_without_its_metadata(tmp_path, strip, named):
+    """A model file without (some of) its rtdenoise metadata: the host exits with status 2
+    and one line naming the key, before reading any frame."""
+    onnx = pytest.importorskip("onnx")
+    exe = build_host(tmp_path)
+    source = Denoiser("demo:afn").source
+    model = onnx.load(str(source))
+    props = {p.key: p.value for p in model.metadata_props}
+    if strip == "all":
+        props = {}
+    elif strip == "bad-state":
+        state = json.loads(props["rtdenoise.state"])
+        del state[1]["channels"]
+        props["rtdenoise.state"] = json.dumps(state)
+    else:
+        del props[strip]
+    del model.metadata_props[:]
+    for key, value in props.items():
+        model.metadata_props.add(key=key, value=value)
+    path = tmp_path / "stripped.onnx"
+    onnx.save(model, str(path))
+    res = run_host(exe, path, tmp_path, 1, 8, 8)
+    assert res.returncode == 2, (res.stdout, res.stderr)
+    last = res.stderr.strip().splitlines()[-1]
+    assert last.startswith(f"{path}: {named}"), res.stderr
+    assert not list(tmp_path.glob("out*.f32"))
