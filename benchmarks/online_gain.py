@@ -53,14 +53,11 @@ def oracle_loss(self, hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, has_histor
     return (0.5 * ((hat_a - label) ** 2 + (hat_b - label) ** 2) / (label * label + eps)).mean()
 
 
-def use_oracle_label(model) -> None:
-    """Make `model`'s online update learn from the reference `run` sets before each frame."""
-    model.online_loss = types.MethodType(oracle_loss, model)
-    model.oracle_label = None
-
-
-def run(model, seq, learn: bool) -> list[float]:
-    """Per-frame tonemapped MSE of `model` over `seq`, learning or frozen."""
+def run(model, seq, learn: bool, oracle: bool = False) -> list[float]:
+    """Per-frame tonemapped MSE of `model` over `seq`, learning or frozen; with `oracle`, the
+    online update learns from each frame's reference (`oracle_loss`)."""
+    if oracle:
+        model.online_loss = types.MethodType(oracle_loss, model)
     n_frames = seq.reference.shape[0]
     h, w = seq.reference.shape[-2:]
     state = model.initial_state(1, h, w)
@@ -70,7 +67,7 @@ def run(model, seq, learn: bool) -> list[float]:
         for t in range(n_frames):
             buffers = {k: torch.from_numpy(v[t][None]) for k, v in seq.buffers.items()}
             first = t == 0 or t in cuts
-            if hasattr(model, "oracle_label"):
+            if oracle:
                 ref = torch.from_numpy(np.ascontiguousarray(seq.reference[t][None]))
                 model.oracle_label = torch.log1p(torch.clamp(ref, min=0.0))
             state["freeze"] = torch.full_like(state["freeze"], 0.0 if learn else 1.0)
@@ -110,15 +107,13 @@ def main(argv: list[str] | None = None) -> int:
         model = build_model("crossreg", config)
         model.load_state_dict(ckpt["state_dict"])
         model.eval()
-        if args.oracle:
-            use_oracle_label(model)
         frozen_key = json.dumps(
             {k: v for k, v in config.items() if k not in LEARNING_ONLY}, sort_keys=True
         )
         results[name] = {}
         for index, seq in enumerate(seqs):
             t0 = time.perf_counter()
-            learn = run(model, seq, True)
+            learn = run(model, seq, True, args.oracle)
             key = (frozen_key, index)
             if key not in frozen_runs:
                 frozen_runs[key] = run(model, seq, False)
