@@ -111,6 +111,21 @@ def _parse_counts(text: str) -> tuple[int, ...]:
     return counts
 
 
+def _parse_oversample(items: list[str] | None) -> dict[str, int]:
+    """["lights=3", ...] -> {"lights": 3}; fail() names a malformed item."""
+    factors: dict[str, int] = {}
+    for item in items or []:
+        kind, sep, count = item.partition("=")
+        try:
+            n = int(count)
+        except ValueError:
+            n = 0
+        if not sep or not kind.strip() or n < 1:
+            fail(f"--oversample {item!r}: expected KIND=N with N >= 1 (e.g. lights=3)")
+        factors[kind.strip()] = n
+    return factors
+
+
 def _parse_range(text: str) -> tuple[float, float]:
     try:
         lo, hi = (float(v) for v in text.split(","))
@@ -127,7 +142,9 @@ def train_command(
     sequences: Annotated[
         list[Path],
         typer.Argument(
-            metavar="SEQ_DIR", help="Training sequence folders (in the --layout's channels)."
+            metavar="SEQ_DIR",
+            help="Training sequence folders (in the --layout's channels), or folders of them "
+            "(a set denoise-render wrote: its complete sequences).",
         ),
     ],
     output: Annotated[Path, typer.Option("--output", "-o", help="Checkpoint to write (.pt).")],
@@ -198,6 +215,14 @@ def train_command(
             "pixels do not swamp the rest of the batch (0: off).",
         ),
     ] = 0.0,
+    oversample: Annotated[
+        list[str] | None,
+        typer.Option(
+            metavar="KIND=N",
+            help="Draw the sequences whose meta.json kind is KIND (denoise-render's scene "
+            "kinds: lights, glass, ...) N times as often; repeatable.",
+        ),
+    ] = None,
     brightness: Annotated[
         str, typer.Option(help="Random brightness range LOW,HIGH (1,1 disables).")
     ] = "0.8,1.2",
@@ -333,6 +358,7 @@ def train_command(
         fail("--resume continues a run, --init-from starts a new one from weights: give one")
     model_config = _parse_config(config)
     brightness_range = _parse_range(brightness)
+    oversample_factors = _parse_oversample(oversample)
     sample_counts = _parse_counts(samples) if samples else ()
     with user_errors():
         get_layout(layout)  # a typo or a bad layout file fails before torch loads
@@ -382,6 +408,7 @@ def train_command(
             workers=workers,
             recipe=recipe.value,
             layout=layout,
+            oversample=oversample_factors,
         )
         settings = dataclasses.replace(settings, **overrides)
         result = train(

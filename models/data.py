@@ -33,8 +33,9 @@ training sets larger than memory.
 
 from __future__ import annotations
 
+import json
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -141,6 +142,63 @@ def load_sequence(
     )
 
 
+def sequence_kind(folder: str | os.PathLike) -> str | None:
+    """The scene kind a rendered sequence's meta.json names (denoise-render writes it), or
+    None without one."""
+    path = Path(folder) / "meta.json"
+    try:
+        kind = json.loads(path.read_text()).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return kind if isinstance(kind, str) else None
+
+
+def _holds_frames(folder: Path) -> bool:
+    return any(p.suffix.lower() == ".exr" for p in folder.iterdir())
+
+
+def training_folders(paths: Sequence[str | os.PathLike]) -> tuple[list[Path], list[Path]]:
+    """The sequence folders `paths` name: a folder holding EXR frames is one; a folder of
+    sequence folders (a set denoise-render writes, e.g. train_v2/) stands for its complete
+    ones, sorted by name. Returns (sequences, incomplete): a set's sub-folder without
+    meta.json (denoise-render writes it last) is still rendering or was killed, and is left
+    out. InputError for a path that is neither."""
+    sequences: list[Path] = []
+    incomplete: list[Path] = []
+    for given in paths:
+        path = Path(given)
+        if not path.is_dir():
+            raise InputError(f"{path}: no such sequence folder")
+        if _holds_frames(path):
+            sequences.append(path)
+            continue
+        subs = sorted(q for q in path.iterdir() if q.is_dir() and _holds_frames(q))
+        if not subs:
+            raise InputError(
+                f"{path}: neither a sequence (no EXR frames) nor a set of sequence folders"
+            )
+        for sub in subs:
+            (sequences if (sub / "meta.json").is_file() else incomplete).append(sub)
+    return sequences, incomplete
+
+
+def oversampled(folders: Sequence[Path], factors: Mapping[str, int]) -> list[Path]:
+    """`folders` with each one of a kind in `factors` (meta.json `kind` -> N) listed N times,
+    so that clips of that kind are drawn N times as often. InputError for a kind no folder
+    has (a typo would otherwise train on the plain mix silently)."""
+    if not factors:
+        return list(folders)
+    kinds = [sequence_kind(f) for f in folders]
+    missing = sorted(set(factors) - set(kinds))
+    if missing:
+        present = sorted({k for k in kinds if k is not None})
+        raise InputError(
+            f"oversample: no training sequence has kind {', '.join(map(repr, missing))} "
+            f"(meta.json kinds present: {', '.join(present) or 'none'})"
+        )
+    return [f for f, k in zip(folders, kinds, strict=True) for _ in range(factors.get(k, 1))]
+
+
 def available_memory() -> int | None:
     """Bytes of memory available to new allocations (Linux MemAvailable), None elsewhere."""
     try:
@@ -173,20 +231,26 @@ def load_sequences(
     """
     if not folders:
         raise InputError("no training sequences given")
+    # a folder listed more than once (oversampling) is read once and shared
+    unique = list(dict.fromkeys(Path(f).resolve() for f in folders))
     if cache is not None:
         from .cache import cached_sequence
 
-        return [cached_sequence(f, buffers, sample_features, cache, layout) for f in folders]
-    first = load_sequence(folders[0], buffers, sample_features, layout)
-    estimate, free = first.nbytes * len(folders), available_memory()
-    if free is not None and estimate > MEMORY_SHARE * free:
-        raise InputError(
-            f"{len(folders)} sequences like {folders[0]} need about {estimate / 2**30:.1f} GiB "
-            f"as float32 in memory, {free / 2**30:.1f} GiB are available: give a cache folder "
-            f"(denoise-train --cache DIR) to memory-map them instead"
-        )
-    rest = (load_sequence(f, buffers, sample_features, layout) for f in folders[1:])
-    return [first, *rest]
+        loaded = [cached_sequence(f, buffers, sample_features, cache, layout) for f in unique]
+    else:
+        first = load_sequence(unique[0], buffers, sample_features, layout)
+        estimate, free = first.nbytes * len(unique), available_memory()
+        if free is not None and estimate > MEMORY_SHARE * free:
+            raise InputError(
+                f"{len(unique)} sequences like {folders[0]} need about "
+                f"{estimate / 2**30:.1f} GiB as float32 in memory, {free / 2**30:.1f} GiB are "
+                f"available: give a cache folder (denoise-train --cache DIR) to memory-map them "
+                f"instead"
+            )
+        rest = (load_sequence(f, buffers, sample_features, layout) for f in unique[1:])
+        loaded = [first, *rest]
+    by_path = dict(zip(unique, loaded, strict=True))
+    return [by_path[Path(f).resolve()] for f in folders]
 
 
 def flip(

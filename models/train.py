@@ -32,7 +32,7 @@ from rtdenoise.runtime.sequences.samples import sample_features_of
 
 from .base import DenoiserModel
 from .checkpoint import CheckpointError, load_checkpoint, load_training_state, save_checkpoint
-from .data import ClipSampler, SequenceData, load_sequences
+from .data import ClipSampler, SequenceData, load_sequences, oversampled, training_folders
 from .device import torch_device
 from .frame_loop import FrameLoop, unroll
 from .loader import step_batches
@@ -73,6 +73,8 @@ class TrainSettings:
     stop_at: int | None = None  # end this call after this step (the schedule spans `steps`)
     workers: int = 0  # >= 1: batch k from stream (seed, k), drawn by worker processes
     recipe: str = "default"  # models.recipes: the settings this run started from
+    # meta.json kind -> N: sequences of that kind are drawn N times as often (models.data)
+    oversample: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -242,15 +244,21 @@ def train(
         check_resumable(train_state.get("schedule"), schedule, str(resume))
     features = sample_features_of(model.config()) if SAMPLES in model.inputs else None
     layout = get_layout(s.layout)  # a bad name or file fails before any sequence is read
-    sequences = load_sequences(data_dirs, model.inputs, features, cache=s.cache, layout=layout)
+    folders, incomplete = training_folders(data_dirs)
+    if incomplete:
+        log(f"data: left out {len(incomplete)} incomplete sequence(s) (no meta.json yet)")
+    drawn = oversampled(folders, s.oversample)
+    sequences = load_sequences(drawn, model.inputs, features, cache=s.cache, layout=layout)
     val_buffers = tuple(dict.fromkeys((*model.inputs, "color")))  # + the noisy input's PSNR
     val_sequences = (
         load_sequences(val_dirs, val_buffers, features, layout=layout) if val_dirs else []
     )
     where = f"memory-mapped from {s.cache}" if s.cache else "in memory"
+    extra = f" (+{len(drawn) - len(folders)} repeats: oversampled)" if s.oversample else ""
     log(
-        f"data: {len(sequences)} sequence(s), "
-        f"{sum(q.nbytes for q in sequences) / 2**20:.0f} MiB {where}"
+        f"data: {len(folders)} sequence(s){extra}, "
+        f"{sum(q.nbytes for q in {id(q): q for q in sequences}.values()) / 2**20:.0f} MiB "
+        f"{where}"
     )
     sampler = ClipSampler(
         sequences,
@@ -293,6 +301,7 @@ def train(
             "loss_last": losses[-1] if losses else meta_in.get("loss_last"),
             "lr_last": lr_now(),
             "data": [str(Path(d)) for d in data_dirs],
+            "sequences": [str(f) for f in folders],
             "val": [str(Path(d)) for d in val_dirs],
             "seed": s.seed,
             "settings": _settings_meta(s),

@@ -72,10 +72,12 @@ def test_in_memory_loading_refuses_what_would_not_fit(tmp_path, monkeypatch):
     seq_dir = write_sequence(tmp_path / "seq", frames=2, size=16)
     one = load_sequence(seq_dir, INPUTS).nbytes
     monkeypatch.setattr(data_module, "available_memory", lambda: 3 * one)
+    other = write_sequence(tmp_path / "other", frames=2, size=16, seed=1)
     assert len(load_sequences([seq_dir], INPUTS)) == 1
+    assert len(load_sequences([seq_dir] * 2, INPUTS)) == 2  # one folder twice: read once
     with pytest.raises(InputError, match="--cache"):
-        load_sequences([seq_dir] * 2, INPUTS)  # 2 sequences > half of 3
-    assert len(load_sequences([seq_dir] * 2, INPUTS, cache=tmp_path / "c")) == 2
+        load_sequences([seq_dir, other], INPUTS)  # 2 sequences > half of 3
+    assert len(load_sequences([seq_dir, other], INPUTS, cache=tmp_path / "c")) == 2
 
 
 def test_clips_never_cross_a_camera_cut(tmp_path):
