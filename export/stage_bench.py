@@ -58,7 +58,11 @@ from .learning_branch import all_nodes, subgraphs
 from .validate import synthetic_frames
 
 STAGES = ("regression", "unet", "filter", "backward + adam", "other")
-STAGE_OF_OP = {"CrossRegression": "regression", "CrossBilateralFilter": "filter"}
+STAGE_OF_OP = {
+    "CrossRegression": "regression",
+    "CrossBilateralFilter": "filter",
+    "SvgfReproject": "other",  # the reprojection: PyTorch's `other` as well
+}
 TORCH_STAGE = {  # torch.profiler range -> reported stage
     "regression": "regression",
     "unet": "unet",

@@ -277,6 +277,7 @@ CPP_OPS = [
     "TemporalAffinityFilter",
     "CrossBilateralFilter",
     "CrossRegression",
+    "SvgfReproject",
 ]
 
 
