@@ -62,6 +62,7 @@ STAGE_OF_OP = {
     "CrossRegression": "regression",
     "CrossBilateralFilter": "filter",
     "SvgfReproject": "other",  # the reprojection: PyTorch's `other` as well
+    "ConvWeightGrad": "backward + adam",
 }
 TORCH_STAGE = {  # torch.profiler range -> reported stage
     "regression": "regression",

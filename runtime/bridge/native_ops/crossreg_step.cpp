@@ -1,7 +1,7 @@
-/* The kernels of rtdenoise_ops for the rest of demo:crossreg's frame: SvgfReproject (its
- * history warp), the float32 arithmetic of runtime/kernels/svgf_reproject.py and of the torch
- * form, step by step and without fused multiply-adds (this file keeps setup.py's
- * -ffp-contract=off), so the forms agree to the bit. */
+/* SvgfReproject of rtdenoise_ops (demo:crossreg's history warp): the float32 arithmetic of
+ * runtime/kernels/svgf_reproject.py and of the torch form, step by step and without fused
+ * multiply-adds (this file keeps setup.py's -ffp-contract=off), so the forms agree to the
+ * bit. */
 #include <cmath>
 #include <memory>
 
