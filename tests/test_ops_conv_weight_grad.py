@@ -28,7 +28,7 @@ CASES = [
     # (N, C_in, C_out, H, W, K, padding)
     (1, 15, 8, 20, 36, 3, 1),  # crossreg's first conv: 15 inputs
     (1, 16, 32, 9, 13, 3, 1),  # odd sizes, a pixel tail under the 8 lanes
-    (1, 5, 7, 12, 300, 3, 1),  # output-channel remainder, a row longer than one chunk
+    (1, 5, 7, 3, 2100, 3, 1),  # output-channel remainder, a row longer than one chunk
     (2, 3, 4, 10, 11, 5, 2),  # a batch; 5 kernel columns: a 3 + 2 column tile
     (1, 4, 6, 9, 9, 3, 0),  # 'valid' convolution: a smaller gradient
 ]
