@@ -157,9 +157,10 @@ def test_learn_every_and_no_online_reach_the_graph(tmp_path):
 
 def test_stage_benchmark_assigns_every_node_and_runs(tmp_path):
     """The ORT nodes of the online graph fall into the stages the way the graph is built: the
-    two custom ops, the forward U-Net (its 12 convolutions), backward + Adam (convolutions and
-    matrix products for the gradients, the max-pool scatters), all of it inside the learning
-    If (its then-branch); `denoise-bench stages` runs at a tiny size."""
+    regression and filter ops, the forward U-Net (its 12 convolutions), backward + Adam
+    (convolutions, ConvWeightGrad ops and matrix products for the gradients, the max-pool
+    scatters), all of it inside the learning If (its then-branch), the reprojection (one
+    SvgfReproject node) in `other`; `denoise-bench stages` runs at a tiny size."""
     from collections import Counter
 
     import onnx
@@ -187,12 +188,15 @@ def test_stage_benchmark_assigns_every_node_and_runs(tmp_path):
     assert ops["backward + adam"]["ScatterElements"] == 2  # max-pool backward
     # input gradients of the 10 convolutions but the first (the network input needs none), as
     # forward convolutions with flipped weights (ORT's ConvTranspose is 20x slower there), and
-    # of the 2 transposed convs; weight gradients as one MatMul per kernel tap: 9 3x3 convs,
-    # the 1x1 head and the 2 1x1 transposed convs
+    # of the 2 transposed convs; weight gradients: one ConvWeightGrad per 3x3 conv (9), one
+    # MatMul for the 1x1 head and each of the 2 1x1 transposed convs
     assert "ConvTranspose" not in ops["backward + adam"]
     assert ops["backward + adam"]["Conv"] == 9 + 2
-    assert ops["backward + adam"]["MatMul"] == 9 * 9 + 1 + 2
+    assert ops["backward + adam"]["ConvWeightGrad"] == 9
+    assert ops["backward + adam"]["MatMul"] == 1 + 2
     assert "Conv" not in ops["other"] and "ConvTranspose" not in ops["other"]
+    assert ops["other"]["SvgfReproject"] == 1  # the history warp: no gathers left
+    assert not any("GatherElements" in counts for counts in ops.values())
     out = tmp_path / "stages.json"
     res = CliRunner().invoke(
         app, ["stages", "demo:crossreg", "--size", "32x32", "--repeats", "1", "--json", str(out)]
