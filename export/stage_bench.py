@@ -21,8 +21,9 @@ reports them by their new names: a fusion keeps the first node's name and append
 appends `_token_<n>`. `profiled_stage` maps such a name back to the stage of the node it
 started from; a node ORT made itself (`Transpose_token_0`, NCHWc's `ReorderInput` /
 `ReorderOutput`) takes the stage of the node it converts a tensor for: the next node run (the
-previous one for `ReorderOutput`). Counting them all as `other` had put a quarter of the
-backward pass's time there (demo:crossreg at 192x128, one thread: 27 ms of its 37).
+previous one for `ReorderOutput`). Counting them all as `other` had left out a third of the
+backward pass's time (demo:crossreg before its ConvWeightGrad, 720p, 2 threads: 1171 ms of its
+1687; benchmarks/README.md, "crossreg's warp and weight gradients as ops").
 
 On the portable path ORT inlines the custom ops' function bodies under generated names, so only
 its total per frame is reported.
