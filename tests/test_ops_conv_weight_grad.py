@@ -72,3 +72,32 @@ def test_the_traced_backward_spells_3x3_weight_gradients_as_the_op():
         torch.testing.assert_close(grad_in, grads[0], rtol=1e-4, atol=1e-4)
         torch.testing.assert_close(grad_w, grads[1], rtol=1e-4, atol=1e-4)
         torch.testing.assert_close(grad_b, g.sum(dim=(0, 2, 3)))
+
+
+def test_the_cpp_kernel_gives_the_same_bits_on_any_thread_count():
+    """The C++ kernel sums fixed 8-row blocks and adds them in block order: 1, 2 or 3 threads
+    give the same bits (a sum split by thread would not)."""
+    import onnxruntime as ort
+
+    from rtdenoise.export import ops as eops
+    from rtdenoise.runtime import bridge as fast_bridge
+    from rtdenoise.runtime.bridge import native_cpp
+
+    if native_cpp.unavailable_reason() is not None:
+        pytest.skip("the C++ library was not built")
+    attrs = {"kernel_size": 3, "padding": 1}
+    model = eops.single_op_model("ConvWeightGrad", None, attrs, with_function=False)
+    so = ort.SessionOptions()
+    assert fast_bridge.register_fast_kernels(so, "native-cpp", ["ConvWeightGrad"]) == "native-cpp"
+    sess = ort.InferenceSession(model.SerializeToString(), so, ["CPUExecutionProvider"])
+    rng = np.random.default_rng(1)
+    feed = {
+        "input": rng.standard_normal((1, 8, 61, 77)).astype(np.float32),
+        "grad_output": rng.standard_normal((1, 16, 61, 77)).astype(np.float32),
+    }
+    outs = []
+    for team in (1, 2, 3):
+        with fast_bridge.kernel_threads("native-cpp", team):
+            outs.append(sess.run(None, feed)[0])
+    for out in outs[1:]:
+        np.testing.assert_array_equal(out, outs[0])
