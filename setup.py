@@ -40,7 +40,15 @@ NATIVE_OPS = Extension(
     "rtdenoise.runtime.bridge.rtdenoise_ops",
     sources=[
         f"runtime/bridge/native_ops/{f}.cpp"
-        for f in ("library", "kernels", "filters", "affinity", "crossreg")
+        for f in (
+            "library",
+            "kernels",
+            "filters",
+            "affinity",
+            "crossreg",
+            "crossreg_step",
+            "conv_grad",
+        )
     ],
     depends=[f"runtime/bridge/native_ops/{f}.h" for f in ("kernels", "kernels_common", "ort_abi")],
     language="c++",

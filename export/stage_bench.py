@@ -15,6 +15,16 @@ and each node is assigned to a stage from the graph alone:
   custom op node (the network and its output transforms);
 - `other`: the rest (reprojection, blending, loss, glue).
 
+ONNX Runtime renames the nodes it rewrites while it optimises the graph, and its profiler
+reports them by their new names: a fusion keeps the first node's name and appends
+`/<Fusion>/` (`node_mm/MatmulTransposeFusion/`: the weight gradients' products), a rewrite
+appends `_token_<n>`. `profiled_stage` maps such a name back to the stage of the node it
+started from; a node ORT made itself (`Transpose_token_0`, NCHWc's `ReorderInput` /
+`ReorderOutput`) takes the stage of the node it converts a tensor for: the next node run (the
+previous one for `ReorderOutput`). Counting them all as `other` had left out a third of the
+backward pass's time (demo:crossreg before its ConvWeightGrad, 720p, 2 threads: 1171 ms of its
+1687; benchmarks/README.md, "crossreg's warp and weight gradients as ops").
+
 On the portable path ORT inlines the custom ops' function bodies under generated names, so only
 its total per frame is reported.
 
@@ -26,6 +36,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import tempfile
 import time
 from collections import defaultdict
@@ -48,7 +59,12 @@ from .learning_branch import all_nodes, subgraphs
 from .validate import synthetic_frames
 
 STAGES = ("regression", "unet", "filter", "backward + adam", "other")
-STAGE_OF_OP = {"CrossRegression": "regression", "CrossBilateralFilter": "filter"}
+STAGE_OF_OP = {
+    "CrossRegression": "regression",
+    "CrossBilateralFilter": "filter",
+    "SvgfReproject": "other",  # the reprojection: PyTorch's `other` as well
+    "ConvWeightGrad": "backward + adam",
+}
 TORCH_STAGE = {  # torch.profiler range -> reported stage
     "regression": "regression",
     "unet": "unet",
@@ -118,25 +134,57 @@ def node_stages(model: onnx.ModelProto, online: dict | None) -> dict[str, str | 
     return stages
 
 
+# what a node ORT made itself is counted as (`profiled_stage`, `node_ms_per_run`)
+NEXT, PREVIOUS = "<next node's>", "<previous node's>"
+_RENAMED = re.compile(r"/|_token_")  # where ORT's suffixes for a rewritten node begin
+
+
+def profiled_stage(name: str, stages: dict[str, str | None]) -> str | None:
+    """The stage of a node as ORT's profiler names it (module docstring): its own name's, or
+    that of the longest original name it extends by ORT's suffixes; NEXT or PREVIOUS for a
+    node ORT made; `other` for a named node of no stage."""
+    if name in stages:
+        return stages[name]
+    for cut in sorted((m.start() for m in _RENAMED.finditer(name)), reverse=True):
+        if name[:cut] in stages:
+            return stages[name[:cut]]
+    return PREVIOUS if name.startswith("ReorderOutput") else NEXT
+
+
 def node_ms_per_run(
     profile: str, bucket: Callable[[str, str], str | None]
 ) -> list[dict[str, float]]:
     """Per session run of an ONNX Runtime profile file (in order): ms of its nodes' kernels
-    summed per `bucket(node name, op type)` (None: not counted)."""
+    summed per `bucket(node name, op type)` (None: not counted; NEXT / PREVIOUS: the key of the
+    next / previous counted node of the run, in the order ORT ran them)."""
     with open(profile) as fh:
         events = json.load(fh)
     runs = sorted((e["ts"], e["ts"] + e["dur"]) for e in events if e.get("name") == "model_run")
-    per_run: list[dict[str, float]] = [defaultdict(float) for _ in runs]
+    timed: list[list[tuple[float, str | None, float]]] = [[] for _ in runs]
     for e in events:
         if e.get("cat") != "Node" or not e["name"].endswith("_kernel_time"):
             continue
         key = bucket(e["name"][: -len("_kernel_time")], e["args"].get("op_name", ""))
-        if key is None:
-            continue
         for r, (start, end) in enumerate(runs):
             if start <= e["ts"] <= end:
-                per_run[r][key] += e["dur"] / 1e3
+                timed[r].append((e["ts"], key, e["dur"] / 1e3))
                 break
+    per_run: list[dict[str, float]] = [defaultdict(float) for _ in runs]
+    for run, nodes in zip(per_run, timed, strict=True):
+        keys = [key for _, key, _ in sorted(nodes, key=lambda t: t[0])]
+        durations = [ms for _, _, ms in sorted(nodes, key=lambda t: t[0])]
+        for direction in (NEXT, PREVIOUS):  # a run of ORT-made nodes inherits as one
+            order = range(len(keys)) if direction == PREVIOUS else range(len(keys) - 1, -1, -1)
+            last = None
+            for i in order:
+                if keys[i] in (NEXT, PREVIOUS):
+                    if keys[i] == direction and last is not None:
+                        keys[i] = last
+                elif keys[i] is not None:  # not an uncounted If
+                    last = keys[i]
+        for key, ms in zip(keys, durations, strict=True):
+            if key is not None:
+                run[key if key not in (NEXT, PREVIOUS) else "other"] += ms
     return per_run
 
 
@@ -174,8 +222,9 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
         walls.append((time.perf_counter() - t0) * 1e3)
         named = dict(zip([o.name for o in session.get_outputs()], outs, strict=True))
         state = {s.name: named[s.output_name] for s in contract.state}
-    stage = lambda node, _op: stage_of.get(node, "other")  # noqa: E731  (None: not counted)
-    per_run = node_ms_per_run(session.end_profiling(), stage)
+    per_run = node_ms_per_run(
+        session.end_profiling(), lambda node, _op: profiled_stage(node, stage_of)
+    )
     timed = per_run[1:] or per_run
     return {s: float(np.median([run.get(s, 0.0) for run in timed])) for s in STAGES}, float(
         np.median(walls[1:] or walls)

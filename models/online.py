@@ -11,10 +11,10 @@ optimiser step, returning theta_t as next state. Nothing flows between frames bu
 - `traced_step`: the step traced by `make_fx` into aten ops (autograd's backward included),
   which `torch.onnx.export` then converts: `torch.export` cannot trace `autograd.grad` itself
   (research-notes, "Training inside ONNX Runtime"). Two backward ops have no ONNX translation
-  and are decomposed here into forward ops: `convolution_backward` (input gradient by a
-  convolution with the flipped, transposed weights, weight gradient by one matrix product per
-  kernel tap; the 1x1 stride-2 transposed convolution by a strided slice, a 1x1 convolution
-  and a matrix product) and
+  and are decomposed here: `convolution_backward` (input gradient by a convolution with the
+  flipped, transposed weights; the weight gradient of a square K x K kernel (K > 1) by the
+  custom op ConvWeightGrad, of a 1x1 one by a matrix product; the 1x1 stride-2 transposed
+  convolution by a strided slice, a 1x1 convolution and a matrix product) and
   `max_pool2d_with_indices_backward` (ScatterElements-add of the gradient at the indices).
 """
 
@@ -27,6 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from .ops.conv_weight_grad import conv_weight_grad
 from .ops.export_mode import exporting
 
 aten = torch.ops.aten
@@ -142,7 +143,11 @@ def _convolution_backward(
             pad = [k[0] - 1 - padding[0], k[1] - 1 - padding[1]]
             grad_in = F.conv2d(grad_out, flipped, padding=pad)
         if output_mask[1]:
-            grad_w = _weight_gradient(inp, grad_out, tuple(weight.shape[2:]), tuple(padding))
+            k, (ph, pw) = tuple(weight.shape[2:]), padding
+            if k[0] == k[1] > 1 and ph == pw:  # one ConvWeightGrad node (the C++ kernel)
+                grad_w = conv_weight_grad(inp, grad_out, kernel_size=k[0], padding=ph)
+            else:
+                grad_w = _weight_gradient(inp, grad_out, k, (ph, pw))
     else:
         if tuple(weight.shape[2:]) != (1, 1) or any(p != 0 for p in padding):
             raise NotImplementedError("online export: only 1x1 transposed convolutions")

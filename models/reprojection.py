@@ -1,4 +1,4 @@
-"""SVGF-style reprojection (Schied17, as Choi24's official code does it) in standard torch ops.
+"""SVGF-style reprojection (Schied17, as Choi24's official code does it): the op SvgfReproject.
 
 Per pixel, the previous position is current + motion (pixels; docs/contract.md). Each of the
 four bilinear taps around it is tested on its own against the current pixel:
@@ -10,8 +10,8 @@ four bilinear taps around it is tested on its own against the current pixel:
 The accepted taps are renormalised by their bilinear weights; where they weigh less than 0.01,
 an optional 3 x 3 fallback averages the accepted pixels around the rounded position (binary
 weights). The validity mask is then eroded by a 3 x 3 minimum (bilinear taps near a rejected
-region mix surfaces). Everything exports to standard ONNX ops (GatherElements, Floor, Where,
-MaxPool); shapes come from tensor shapes only.
+region mix surfaces). One custom op (rtdenoise.ops.svgf_reproject; its torch form, the
+reference in tensor ops, is models/ops/svgf_reproject.py).
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
+
+from .ops.svgf_reproject import fwidths, gather_pixels, svgf_reproject_reference
 
 
 @dataclass(frozen=True)
@@ -28,33 +29,6 @@ class ReprojectionConfig:
     normal_threshold: float = 4.0  # ||dn|| / (fwidth_n + 1e-2) > 4 fails
     fallback: bool = True  # 3 x 3 binary fallback where the bilinear taps fail
     erode: bool = True  # 3 x 3 min of the validity mask
-
-
-def _diff_x(x: torch.Tensor) -> torch.Tensor:
-    """|x(y, x+1) - x(y, x)|, the last column repeating its neighbour's difference."""
-    d = (x[..., :, 1:] - x[..., :, :-1]).abs()
-    return torch.cat((d, d[..., :, -1:]), dim=-1)
-
-
-def _diff_y(x: torch.Tensor) -> torch.Tensor:
-    d = (x[..., 1:, :] - x[..., :-1, :]).abs()
-    return torch.cat((d, d[..., -1:, :]), dim=-2)
-
-
-def fwidths(depth: torch.Tensor, normal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(fwidth_z, fwidth_n), (N, 1, H, W) each: screen-space derivatives of depth and normal."""
-    fw_z = torch.maximum(_diff_x(depth), _diff_y(depth))
-    fw_n = torch.sqrt(((_diff_x(normal) + _diff_y(normal)) ** 2).sum(dim=1, keepdim=True))
-    return fw_z, fw_n
-
-
-def gather_pixels(flat: torch.Tensor, ix: torch.Tensor, iy: torch.Tensor, w: int) -> torch.Tensor:
-    """flat (N, C, H*W) read at integer positions (ix, iy) (N, H, W), clamped -> (N, C, H, W)."""
-    n, c, hw = flat.shape
-    h = hw // w
-    idx = iy.clamp(0, h - 1) * w + ix.clamp(0, w - 1)
-    picked = torch.gather(flat, 2, idx.reshape(n, 1, -1).expand(n, c, idx[0].numel()))
-    return picked.reshape(n, c, ix.shape[1], ix.shape[2])
 
 
 def svgf_reproject(
@@ -68,55 +42,38 @@ def svgf_reproject(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Reproject `previous` (N, C, H, W) to the current pixels; returns (warped, valid), valid
     (N, 1, H, W) in {0, 1} and warped 0 where invalid. See the module docstring."""
-    n, c, h, w = previous.shape
-    flat = torch.cat((previous, prev_normal, prev_depth), dim=1).flatten(2)
-    fw_z, fw_n = fwidths(depth, normal)
-    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
-    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
-    px, py = xs + motion[:, 0], ys + motion[:, 1]
+    geometry = torch.cat((prev_normal, prev_depth), dim=1)
+    return svgf_reproject_geometry(previous, geometry, motion, normal, depth, config)
 
-    def tap(fx: torch.Tensor, fy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Values (N, C, H, W) at integer float positions and whether the tap passes."""
-        ix, iy = fx.long(), fy.long()
-        g = gather_pixels(flat, ix, iy, w)
-        inside = (fx >= 0) & (fx <= w - 1) & (fy >= 0) & (fy <= h - 1)
-        depth_ok = (g[:, c + 3 : c + 4] - depth).abs() <= config.depth_threshold * (fw_z + 1e-2)
-        dn = torch.sqrt(((g[:, c : c + 3] - normal) ** 2).sum(dim=1, keepdim=True))
-        normal_ok = dn <= config.normal_threshold * (fw_n + 1e-2)
-        return g[:, :c], inside.unsqueeze(1) & depth_ok & normal_ok
 
-    # Bilinear taps, each tested, renormalised (SVGF).
-    x0, y0 = torch.floor(px), torch.floor(py)
-    ax, ay = (px - x0).unsqueeze(1), (py - y0).unsqueeze(1)
-    acc = previous.new_zeros(n, c, h, w)
-    total = previous.new_zeros(n, 1, h, w)
-    for ox, oy, wgt in (
-        (0, 0, (1 - ax) * (1 - ay)),
-        (1, 0, ax * (1 - ay)),
-        (0, 1, (1 - ax) * ay),
-        (1, 1, ax * ay),
-    ):
-        value, ok = tap(x0 + ox, y0 + oy)
-        wgt = torch.where(ok, wgt, torch.zeros_like(wgt))
-        acc = acc + wgt * value
-        total = total + wgt
-    valid = total >= 0.01
-    warped = torch.where(valid, acc / torch.where(valid, total, torch.ones_like(total)), 0.0)
+def svgf_reproject_geometry(
+    previous: torch.Tensor,
+    prev_geometry: torch.Tensor,
+    motion: torch.Tensor,
+    normal: torch.Tensor,
+    depth: torch.Tensor,
+    config: ReprojectionConfig = ReprojectionConfig(),
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """`svgf_reproject` with the previous normal and depth as one (N, 4, H, W) tensor (a
+    family's geometry state): one SvgfReproject node."""
+    scalar = lambda v: torch.tensor(v, dtype=previous.dtype, device=previous.device)  # noqa: E731
+    return svgf_reproject_reference(
+        previous,
+        prev_geometry,
+        motion,
+        normal,
+        depth,
+        scalar(config.depth_threshold),
+        scalar(config.normal_threshold),
+        fallback=int(config.fallback),
+        erode=int(config.erode),
+    )
 
-    if config.fallback:  # 3 x 3 binary cross-bilateral fallback around the rounded position
-        rx, ry = torch.floor(px + 0.5), torch.floor(py + 0.5)
-        fsum = previous.new_zeros(n, c, h, w)
-        count = previous.new_zeros(n, 1, h, w)
-        for oy in (-1, 0, 1):
-            for ox in (-1, 0, 1):
-                value, ok = tap(rx + ox, ry + oy)
-                fsum = fsum + torch.where(ok, value, 0.0)
-                count = count + ok.to(count.dtype)
-        use = (~valid) & (count > 0)
-        warped = torch.where(use, fsum / count.clamp(min=1.0), warped)
-        valid = valid | use
 
-    mask = valid.to(previous.dtype)
-    if config.erode:  # 3 x 3 minimum, out-of-image neighbours ignored
-        mask = -F.max_pool2d(-F.pad(mask, (1, 1, 1, 1), value=1.0), 3, stride=1)
-    return warped * mask, mask
+__all__ = [
+    "ReprojectionConfig",
+    "fwidths",
+    "gather_pixels",
+    "svgf_reproject",
+    "svgf_reproject_geometry",
+]

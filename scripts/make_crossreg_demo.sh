@@ -13,4 +13,4 @@ save_checkpoint('$OUT/crossreg.pt', build_model('crossreg'), {
     'commands': ['scripts/make_crossreg_demo.sh'],
 })
 "
-denoise-export "$OUT/crossreg.pt" -o "$OUT/crossreg.onnx"
+denoise-export "$OUT/crossreg.pt" -o "$OUT/crossreg.onnx" --overwrite

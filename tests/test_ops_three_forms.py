@@ -262,8 +262,8 @@ print("ok", fast_bridge.CALLS["KernelApply"])
 # ------------------------------------------------- the C++ library rtdenoise_ops (native-cpp)
 
 # The ops the library holds (runtime/bridge/native_ops/: the tables of kernels.cpp,
-# affinity.cpp and crossreg.cpp): every op of demo:afn, demo:wskp, demo:nbg, demo:affinity
-# and demo:crossreg.
+# affinity.cpp, crossreg.cpp, crossreg_step.cpp and conv_grad.cpp): every op of demo:afn,
+# demo:wskp, demo:nbg, demo:affinity and demo:crossreg.
 CPP_OPS = [
     "KernelApply",
     "SoftmaxKernelApply",
@@ -277,6 +277,8 @@ CPP_OPS = [
     "TemporalAffinityFilter",
     "CrossBilateralFilter",
     "CrossRegression",
+    "SvgfReproject",
+    "ConvWeightGrad",
 ]
 
 

@@ -80,7 +80,7 @@ from ..ops.cross_bilateral_filter import cross_bilateral_filter
 from ..ops.cross_regression import cross_regression
 from ..ops.export_mode import use_custom_op
 from ..profiling import stage
-from ..reprojection import ReprojectionConfig, svgf_reproject
+from ..reprojection import ReprojectionConfig, svgf_reproject_geometry
 
 INPUTS = ("color", "color_b", "albedo", "normal", "depth", "motion")
 NOTE = (
@@ -350,8 +350,8 @@ class CrossReg(DenoiserModel):
         history = torch.where(fresh, 0.0, state["history"])
         geometry = torch.where(fresh, 0.0, state["geometry"])
         with stage("reprojection"):
-            warped, valid = svgf_reproject(
-                history, geometry[:, :3], geometry[:, 3:], motion, normal, depth, self.reprojection
+            warped, valid = svgf_reproject_geometry(
+                history, geometry, motion, normal, depth, self.reprojection
             )
         valid = valid * (1.0 - reset)
         has_history = valid > 0.5

@@ -57,6 +57,8 @@ struct OpDef {
 const OpDef *op_table(int *count);           // kernels.cpp (and filters.cpp): afn, wskp, nbg
 const OpDef *affinity_op_table(int *count);  // affinity.cpp: demo:affinity's ops
 const OpDef *crossreg_op_table(int *count);  // crossreg.cpp: demo:crossreg's ops
+const OpDef *crossreg_step_op_table(int *count);  // crossreg_step.cpp: crossreg's history warp
+const OpDef *conv_grad_op_table(int *count);  // conv_grad.cpp: conv weight gradients (online backward)
 
 /* Split [0, rows) into contiguous chunks run by up to `threads` threads (the caller's one of
  * them), at most one per GRAIN of `work` (about the multiply-adds of the call: a thread

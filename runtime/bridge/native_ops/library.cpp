@@ -231,7 +231,8 @@ std::string names;
 void build_ops() {
     if (n_ops) return;
     const int capacity = static_cast<int>(sizeof ops / sizeof ops[0]);
-    for (auto table : {rtd::op_table, rtd::affinity_op_table, rtd::crossreg_op_table}) {
+    for (auto table : {rtd::op_table, rtd::affinity_op_table, rtd::crossreg_op_table,
+                       rtd::crossreg_step_op_table, rtd::conv_grad_op_table}) {
         int count = 0;
         const rtd::OpDef *defs = table(&count);
         for (int t = 0; t < count && n_ops < capacity; ++t) {
