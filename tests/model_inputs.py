@@ -30,3 +30,22 @@ def random_buffers(seed: int, n: int, h: int, w: int) -> dict[str, torch.Tensor]
         "motion": (torch.rand(n, 2, h, w, generator=g) - 0.5) * 3.0,
     }
     return buffers | {"samples": samples_of(buffers)}
+
+
+def conv_macs_per_pixel(model: torch.nn.Module, h: int = 32, w: int = 32) -> float:
+    """Multiply-adds of every Conv2d of a frame-buffer model per pixel, counted by forward
+    hooks on one (h, w) frame of random buffers."""
+    macs = []
+
+    def hook(conv, inputs, output):
+        k = conv.kernel_size[0] * conv.kernel_size[1] * conv.in_channels // conv.groups
+        macs.append(output.numel() * k)
+
+    convs = [m for m in model.modules() if isinstance(m, torch.nn.Conv2d)]
+    handles = [m.register_forward_hook(hook) for m in convs]
+    buffers = {k: v for k, v in random_buffers(0, 1, h, w).items() if k in model.inputs}
+    with torch.no_grad():
+        model(buffers, model.initial_state(1, h, w), torch.tensor(1.0))
+    for handle in handles:
+        handle.remove()
+    return sum(macs) / (h * w)

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import pytest
 import torch
-from model_inputs import random_buffers
-from torch import nn
+from model_inputs import conv_macs_per_pixel, random_buffers
 
 from rtdenoise.models.families.afn import AFN, LEGACY_CONFIG, AFNConfig, parameter_count
 from rtdenoise.models.ops import observe_calls
@@ -72,22 +71,6 @@ def test_registry_and_default_size():
         AFNConfig.from_dict({"kernel_size": 4})
 
 
-def _conv_macs_per_pixel(model: AFN, h: int = 32, w: int = 32) -> float:
-    """Multiply-adds of every Conv2d per pixel, counted by forward hooks."""
-    macs = []
-
-    def hook(conv, inputs, output):
-        k = conv.kernel_size[0] * conv.kernel_size[1] * conv.in_channels // conv.groups
-        macs.append(output.numel() * k)
-
-    handles = [m.register_forward_hook(hook) for m in model.modules() if isinstance(m, nn.Conv2d)]
-    buffers = _buffers(n=1, h=h, w=w)
-    model(buffers, model.initial_state(1, h, w), torch.tensor(1.0))
-    for handle in handles:
-        handle.remove()
-    return sum(macs) / (h * w)
-
-
 def test_default_is_within_lee24_budget_and_legacy_is_not():
     """Lee24 times kernel prediction at 1.46 ms per 720p frame (about 8 k multiply-adds per
     pixel, 14 GFLOP): the default network, predictor and refinement together, fits; the model
@@ -103,8 +86,8 @@ def test_default_is_within_lee24_budget_and_legacy_is_not():
         macs += 9 * ((widths[level + 1] + w) * w + w * w) / 4**level
     macs += 16 * 50 + 12 * 49 / 4 + 9 * (10 * 4 + 4 * 3)
     with torch.no_grad():
-        light = _conv_macs_per_pixel(build_model("afn").eval())
-        legacy = _conv_macs_per_pixel(build_model("afn", LEGACY_CONFIG).eval())
+        light = conv_macs_per_pixel(build_model("afn").eval())
+        legacy = conv_macs_per_pixel(build_model("afn", LEGACY_CONFIG).eval())
     assert light == macs == 6939.0 and legacy == 45512.0
     assert 2 * light * 1280 * 720 / 1e9 < 14.0
 

@@ -1,6 +1,5 @@
-"""benchmarks/flops.py counts the Conv multiply-adds of an exported graph; the shipped demo:afn's
-kernel prediction fits Lee24's budget (<= 14 GFLOP per 1280 x 720 frame, FLOP = 2 x
-multiply-adds)."""
+"""benchmarks/flops.py counts the Conv multiply-adds of an exported graph: the shipped demo:afn's
+count is its PyTorch modules' count (FLOP = 2 x multiply-adds)."""
 
 from __future__ import annotations
 
@@ -68,17 +67,20 @@ def test_zero_channels_padded_at_export_are_not_the_models_arithmetic():
     assert cost.macs == 10 * 20 * 2 * 3 * 9
 
 
-def test_shipped_afn_is_within_lee24_budget(capsys):
-    """The graph count equals the torch modules' count (tests/test_afn_model.py: 6939 multiply-
-    adds per pixel for the head-alpha default), so the custom ops' shape rules carried the sizes
-    to the refinement. demo:afn has Lee24's fusion network (Fig. 2c): its alpha channel leaves
-    the head (16 fewer) and two 3 x 3 convs 16 -> 8 -> 1 join; Lee24 counts that CNN in
-    "filtering & fusion" (1.64 ms), not in the kernel prediction the 14 GFLOP budget times."""
+def test_shipped_afn_graph_counts_what_its_modules_compute(capsys):
+    """The graph count equals the torch modules' count (forward hooks), so the custom ops' shape
+    rules carried the sizes to the refinement. demo:afn spends the speed headroom on capacity
+    (issue 31: twice Lee24's widths, 0.83x OIDN fast's 720p time): above Lee24's 14 GFLOP for
+    the kernel prediction, which the default config keeps (tests/test_afn_model.py)."""
+    from model_inputs import conv_macs_per_pixel
+
+    from rtdenoise.models.checkpoint import load_checkpoint
+
+    model, _ = load_checkpoint(MODELS_DIR / "afn.pt")
     costs = flops.conv_costs(MODELS_DIR / "afn.onnx", 720, 1280)
-    macs = sum(c.macs for c in costs)
-    fusion = 9 * (16 * 8 + 8 * 1)
-    assert macs == (6939 - 16 + fusion) * 1280 * 720  # the NCHWc zero padding not counted
-    assert 2 * (macs - fusion * 1280 * 720) / 1e9 <= LEE24_BUDGET_GFLOP
+    macs = sum(c.macs for c in costs)  # the NCHWc zero padding not counted
+    assert macs == conv_macs_per_pixel(model) * 1280 * 720
+    assert 2 * macs / 1e9 > LEE24_BUDGET_GFLOP  # the capacity the headroom bought
     flops.main(["demo:afn", "--size", "1280x720", "--json"])
     (result,) = json.loads(capsys.readouterr().out)
     assert result["gflop"] == pytest.approx(2 * macs / 1e9) and result["convs"] == len(costs)
