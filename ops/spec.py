@@ -174,3 +174,19 @@ def same_nhw(op: str, shapes: Sequence[Shape], names: Sequence[str]) -> None:
                 f"{op}: {name} has shape {tuple(shape)}; expected N, H, W = {n}, {h}, {w} "
                 f"like {names[0]}"
             )
+
+
+def example_geometry(
+    shape: Shape, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Example G-buffers of the reprojecting ops: smooth depth in [1.1, 1.9] (n, 1, h, w),
+    unit normals tilted smoothly (n, 3, h, w), float32, and `agree` (n, 1, h, w) bool, True on
+    about 3/4 of the pixels: where the example's previous geometry equals the current one."""
+    n, _c, h, w = shape
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    phase = rng.uniform(0, 2 * np.pi, (n, 1, 1, 1))
+    depth = (1.5 + 0.4 * np.sin(xs / 5.0 + ys / 7.0 + phase)).astype(np.float32)
+    tilt = 0.2 * np.sin(xs / 6.0 - ys / 4.0 + phase)
+    normal = np.concatenate([tilt, 0.5 * tilt, np.ones_like(tilt)], axis=1)
+    normal = (normal / np.linalg.norm(normal, axis=1, keepdims=True)).astype(np.float32)
+    return depth, normal, rng.random((n, 1, h, w)) < 0.75

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .spec import Arg, OpSpec, same_nhw
+from .spec import Arg, OpSpec, example_geometry, same_nhw
 
 IMAGES = ("previous", "prev_geometry", "motion", "normal", "depth")
 SCALARS = ("depth_threshold", "normal_threshold")
@@ -56,13 +56,7 @@ def _example_inputs(shape, attrs, rng: np.random.Generator) -> list[np.ndarray]:
     motion mostly within 2 px (some off-screen), some exactly integer (taps on pixel centres)."""
     n, c, h, w = shape
     f32 = np.float32
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    phase = rng.uniform(0, 2 * np.pi, (n, 1, 1, 1))
-    depth = (1.5 + 0.4 * np.sin(xs / 5.0 + ys / 7.0 + phase)).astype(f32)
-    tilt = 0.2 * np.sin(xs / 6.0 - ys / 4.0 + phase)
-    normal = np.concatenate([tilt, 0.5 * tilt, np.ones_like(tilt)], axis=1)
-    normal = (normal / np.linalg.norm(normal, axis=1, keepdims=True)).astype(f32)
-    agree = rng.random((n, 1, h, w)) < 0.75
+    depth, normal, agree = example_geometry(shape, rng)
     prev_geometry = np.concatenate(
         [np.where(agree, normal, normal[:, ::-1]), np.where(agree, depth, depth + 1.0)], axis=1
     ).astype(f32)

@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .spec import Arg, OpSpec, same_nhw
+from .spec import Arg, OpSpec, example_geometry, same_nhw
 
 IMAGES = ("current", "motion", "depth", "normal", "ta_state", "geometry_state")
 SCALARS = ("reset", "depth_tolerance", "normal_threshold", "min_alpha", "max_history")
@@ -76,13 +76,7 @@ def _example_inputs(shape, attrs, rng: np.random.Generator) -> list[np.ndarray]:
     max_history); reset 0."""
     n, c, h, w = shape
     f32 = np.float32
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    phase = rng.uniform(0, 2 * np.pi, (n, 1, 1, 1))
-    depth = (1.5 + 0.4 * np.sin(xs / 5.0 + ys / 7.0 + phase)).astype(f32)
-    tilt = 0.2 * np.sin(xs / 6.0 - ys / 4.0 + phase)
-    normal = np.concatenate([tilt, 0.5 * tilt, np.ones_like(tilt)], axis=1)
-    normal = (normal / np.linalg.norm(normal, axis=1, keepdims=True)).astype(f32)
-    agree = rng.random((n, 1, h, w)) < 0.75
+    depth, normal, agree = example_geometry(shape, rng)
     prev_normal = np.where(agree, normal, normal[:, ::-1])
     prev_depth = np.where(agree, depth, 3.0)
     current = (2.0 * rng.random((n, c, h, w))).astype(f32)
