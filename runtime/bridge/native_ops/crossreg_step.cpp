@@ -51,7 +51,7 @@ struct SrArgs {
 
 /* kernels/svgf_reproject.py _clamped_index: an integer-valued float position -> its clamped
  * pixel index (NaN and below 0: 0). */
-inline int64_t clamped_index(float f, int64_t size) {
+RTD_INLINE int64_t clamped_index(float f, int64_t size) {
     if (!(f > 0.0f)) return 0;
     if (f > static_cast<float>(size - 1)) return size - 1;
     return static_cast<int64_t>(f);
@@ -63,8 +63,8 @@ struct Pixel {
 
 /* _tap_ok: the clamped tap's flat index; whether it passes the in-image, depth and normal
  * tests. */
-inline bool tap_ok(const SrArgs &a, const float *geo, float fx, float fy, const Pixel &p,
-                   int64_t *index) {
+RTD_INLINE bool tap_ok(const SrArgs &a, const float *geo, float fx, float fy, const Pixel &p,
+                       int64_t *index) {
     const int64_t hw = a.h * a.w;
     const int64_t i = clamped_index(fy, a.h) * a.w + clamped_index(fx, a.w);
     *index = i;
@@ -76,7 +76,7 @@ inline bool tap_ok(const SrArgs &a, const float *geo, float fx, float fy, const 
     return inside && depth_ok && dn <= p.normal_tol;
 }
 
-void sr_warp(const SrArgs &a, int64_t begin, int64_t end) {
+RTD_CLONES void sr_warp(const SrArgs &a, int64_t begin, int64_t end) {
     const int64_t c = a.c, h = a.h, w = a.w, hw = h * w;
     const float eps = 1e-2f, zero = 0.0f, one = 1.0f;
     std::unique_ptr<float[]> acc(new float[static_cast<size_t>(c)]);
@@ -145,7 +145,7 @@ void sr_warp(const SrArgs &a, int64_t begin, int64_t end) {
     }
 }
 
-void sr_erode(const SrArgs &a, int64_t begin, int64_t end) {
+RTD_CLONES void sr_erode(const SrArgs &a, int64_t begin, int64_t end) {
     const int64_t c = a.c, h = a.h, w = a.w, hw = h * w;
     for (int64_t row = begin; row < end; ++row) {
         const int64_t n = row / h, y = row - n * h;
@@ -174,9 +174,10 @@ void svgf_reproject_run(const Tensor *in, Tensor *out, const int64_t *attrs, int
     a.fallback = attrs[0] != 0, a.erode = attrs[1] != 0;
     a.c = in[0].dims[1], a.h = in[0].dims[2], a.w = in[0].dims[3];
     const int64_t n = in[0].dims[0], hw = a.h * a.w;
-    std::unique_ptr<float[]> unmasked(new float[static_cast<size_t>(n * a.c * hw)]);
+    // the warp writes its unmasked result into the output, which the erode pass then masks
+    // in place (element by element: no pixel reads another's), saving a frame-sized buffer
     std::unique_ptr<float[]> before(new float[static_cast<size_t>(n * hw)]);
-    a.unmasked = unmasked.get(), a.before = before.get();
+    a.unmasked = out[0].data, a.before = before.get();
     a.warped = out[0].data, a.valid = out[1].data;
     parallel_for(n * a.h, threads, n * hw * (a.c + 8) * 13,
                  [&](int64_t b, int64_t e) { sr_warp(a, b, e); });
