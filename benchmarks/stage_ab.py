@@ -18,93 +18,38 @@ and B / A of the medians.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import statistics
-import tempfile
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-import numpy as np  # noqa: E402
-import onnx  # noqa: E402
-import onnxruntime as ort  # noqa: E402
-
-from rtdenoise.export.learning_branch import all_nodes  # noqa: E402
-from rtdenoise.export.stage_bench import (  # noqa: E402
-    STAGES,
-    node_ms_per_run,
-    node_stages,
-    profiled_stage,
-)
-from rtdenoise.runtime import bridge  # noqa: E402
-from rtdenoise.runtime.contract import RESET, contract_from_session  # noqa: E402
+from rtdenoise.export.stage_bench import STAGES, ProfiledRun, profiled_run  # noqa: E402
 from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
-from rtdenoise.runtime.session import ALLOW_SPINNING, kernel_thread_count  # noqa: E402
-from rtdenoise.runtime.static_check import custom_op_types  # noqa: E402
 from rtdenoise.shipped import demo_model  # noqa: E402
 
 
 @dataclass
 class Side:
-    """One file's session, its node -> stage map, its state and its frame times."""
+    """One file's name and its profiled run."""
 
     name: str
-    session: ort.InferenceSession
-    chosen: str | None
-    stages: dict[str, str | None]
-    contract: object
-    state: dict[str, np.ndarray] = field(default_factory=dict)
-    walls: list[float] = field(default_factory=list)
+    run: ProfiledRun
 
 
 def open_side(name: str, source: str, threads: int | None) -> Side:
     """A profiled fast-path session of `source` (a path or demo:<family>)."""
     path = demo_model(source.split(":", 1)[1], ".onnx") if source.startswith("demo:") else source
-    data = open(path, "rb").read()
-    proto = onnx.load_from_string(data)
-    for i, node in enumerate(all_nodes(proto.graph)):  # the profiler reports nodes by name
-        node.name = node.name or f"node_{i}"
-    so = ort.SessionOptions()
-    if threads:
-        so.intra_op_num_threads = threads
-    chosen = bridge.register_fast_kernels(so, None, custom_op_types(data))
-    so.add_session_config_entry(ALLOW_SPINNING, "0")
-    so.enable_profiling = True
-    so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), name)
-    session = ort.InferenceSession(proto.SerializeToString(), so, ["CPUExecutionProvider"])
-    contract = contract_from_session(session)
-    return Side(name, session, chosen, node_stages(proto, contract.online), contract)
-
-
-def run_frame(side: Side, frame: dict, first: bool, threads: int | None) -> None:
-    """One learning frame (reset on the first), its state fed back, its wall time kept."""
-    contract = side.contract
-    h, w = frame[contract.buffer_names[0]].shape[-2:]
-    if first:
-        side.state = {s.name: np.zeros(s.shape(h, w), np.float32) for s in contract.state}
-    feed = {name: frame[name][None] for name in contract.buffer_names}
-    feed[RESET] = np.array(1.0 if first else 0.0, np.float32)
-    feed.update({s.input_name: side.state[s.name] for s in contract.state})
-    team = kernel_thread_count((h, w), threads)
-    context = bridge.kernel_threads(side.chosen, team) if side.chosen else contextlib.nullcontext()
-    t0 = time.perf_counter()
-    with context:
-        outs = side.session.run(None, feed)
-    side.walls.append((time.perf_counter() - t0) * 1e3)
-    named = dict(zip([o.name for o in side.session.get_outputs()], outs, strict=True))
-    side.state = {s.name: named[s.output_name] for s in contract.state}
+    with open(path, "rb") as fh:
+        return Side(name, profiled_run(fh.read(), True, threads, prefix=name))
 
 
 def stage_times(side: Side, warmup: int) -> dict[str, list[float]]:
     """{stage or "whole frame": ms of each timed frame}."""
-    runs = node_ms_per_run(
-        side.session.end_profiling(), lambda node, _op: profiled_stage(node, side.stages)
-    )[warmup:]
+    runs = side.run.stage_ms()[warmup:]
     times = {s: [run.get(s, 0.0) for run in runs] for s in STAGES}
-    times["whole frame"] = side.walls[warmup:]
+    times["whole frame"] = side.run.walls[warmup:]
     return times
 
 
@@ -126,14 +71,15 @@ def main() -> None:
     pad = 4  # crossreg's pad multiple; synthetic frames of a padded size
     h, w = -(-h // pad) * pad, -(-w // pad) * pad
     frames = synthetic_frames(
-        sides[0].contract.buffer_names, args.warmup + args.frames, h, w, seed=0
+        sides[0].run.contract.buffer_names, args.warmup + args.frames, h, w, seed=0
     )
     for k, frame in enumerate(frames):
         for side in sides if k % 2 == 0 else sides[::-1]:
-            run_frame(side, frame, k == 0, args.threads)
+            side.run.frame(frame, k == 0, args.threads)
     a, b = (stage_times(s, args.warmup) for s in sides)
+    bridges = " / ".join(str(s.run.chosen) for s in sides)
     print(f"{w}x{h}, {args.frames} learning frames after {args.warmup} warm-up, "
-          f"threads {args.threads}, bridges {sides[0].chosen} / {sides[1].chosen}\n")  # fmt: skip
+          f"threads {args.threads}, bridges {bridges}\n")  # fmt: skip
     print(
         f"| stage | {sides[0].name} ms | {sides[1].name} ms | {sides[1].name} / {sides[0].name} |"
     )

@@ -41,6 +41,7 @@ import tempfile
 import time
 from collections import defaultdict
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 import onnx
@@ -188,8 +189,47 @@ def node_ms_per_run(
     return per_run
 
 
-def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tuple[dict, float]:
-    """(median ms per stage, median ms per frame) of ONNX Runtime over frames[1:]."""
+@dataclass
+class ProfiledRun:
+    """A profiled ONNX Runtime session of an exported model, its node -> stage map, its state
+    carried from frame to frame and its frame wall times (ms)."""
+
+    session: ort.InferenceSession
+    chosen: str | None  # the fast-kernel bridge registered, None on the portable path
+    stage_of: dict[str, str | None]
+    contract: object
+    state: dict[str, np.ndarray] = field(default_factory=dict)
+    walls: list[float] = field(default_factory=list)
+
+    def frame(self, frame: dict, first: bool, threads: int | None) -> None:
+        """Run one frame (reset and zero state on the first), feed its state back, time it."""
+        contract = self.contract
+        h, w = frame[contract.buffer_names[0]].shape[-2:]
+        if first:
+            self.state = {s.name: np.zeros(s.shape(h, w), np.float32) for s in contract.state}
+        feed = {name: frame[name][None] for name in contract.buffer_names}
+        feed[RESET] = np.array(1.0 if first else 0.0, np.float32)
+        feed.update({s.input_name: self.state[s.name] for s in contract.state})
+        team = kernel_thread_count((h, w), threads)
+        t0 = time.perf_counter()
+        with bridge.kernel_threads(self.chosen, team) if self.chosen else contextlib.nullcontext():
+            outs = self.session.run(None, feed)
+        self.walls.append((time.perf_counter() - t0) * 1e3)
+        named = dict(zip([o.name for o in self.session.get_outputs()], outs, strict=True))
+        self.state = {s.name: named[s.output_name] for s in contract.state}
+
+    def stage_ms(self) -> list[dict[str, float]]:
+        """Ends the profile: ms per stage of every frame run so far."""
+        return node_ms_per_run(
+            self.session.end_profiling(), lambda node, _op: profiled_stage(node, self.stage_of)
+        )
+
+
+def profiled_run(
+    onnx_bytes: bytes, fast: bool, threads: int | None, prefix: str = "ort"
+) -> ProfiledRun:
+    """A ProfiledRun of an exported model: the fast path as Denoiser runs it (the bridge it
+    picks for the model's ops, idle ORT workers sleeping while a kernel runs), or portable."""
     proto = onnx.load_from_string(onnx_bytes)
     for i, node in enumerate(all_nodes(proto.graph)):  # the profiler reports nodes by name
         node.name = node.name or f"node_{i}"
@@ -197,34 +237,24 @@ def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tu
     if threads:
         so.intra_op_num_threads = threads
     chosen = None
-    if fast:  # as Denoiser runs it: idle ORT workers sleep while a kernel runs
-        # the bridge Denoiser picks for the model's ops (the C++ library where it holds them all)
+    if fast:
         chosen = bridge.register_fast_kernels(so, None, custom_op_types(onnx_bytes))
         so.add_session_config_entry(ALLOW_SPINNING, "0")
     so.enable_profiling = True
-    so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), "ort")
+    so.profile_file_prefix = os.path.join(tempfile.mkdtemp(), prefix)
     session = ort.InferenceSession(
         proto.SerializeToString(), so, providers=["CPUExecutionProvider"]
     )
     contract = contract_from_session(session)
-    stage_of = node_stages(proto, contract.online)
-    h, w = frames[0][contract.buffer_names[0]].shape[-2:]
-    state = {s.name: np.zeros(s.shape(h, w), np.float32) for s in contract.state}
-    walls = []
+    return ProfiledRun(session, chosen, node_stages(proto, contract.online), contract)
+
+
+def _ort_times(onnx_bytes: bytes, frames, fast: bool, threads: int | None) -> tuple[dict, float]:
+    """(median ms per stage, median ms per frame) of ONNX Runtime over frames[1:]."""
+    profiled = profiled_run(onnx_bytes, fast, threads)
     for k, frame in enumerate(frames):
-        feed = {name: frame[name][None] for name in contract.buffer_names}
-        feed[RESET] = np.array(1.0 if k == 0 else 0.0, np.float32)
-        feed.update({s.input_name: state[s.name] for s in contract.state})
-        t0 = time.perf_counter()
-        team = kernel_thread_count((h, w), threads)
-        with bridge.kernel_threads(chosen, team) if fast else contextlib.nullcontext():
-            outs = session.run(None, feed)
-        walls.append((time.perf_counter() - t0) * 1e3)
-        named = dict(zip([o.name for o in session.get_outputs()], outs, strict=True))
-        state = {s.name: named[s.output_name] for s in contract.state}
-    per_run = node_ms_per_run(
-        session.end_profiling(), lambda node, _op: profiled_stage(node, stage_of)
-    )
+        profiled.frame(frame, k == 0, threads)
+    per_run, walls = profiled.stage_ms(), profiled.walls
     timed = per_run[1:] or per_run
     return {s: float(np.median([run.get(s, 0.0) for run in timed])) for s in STAGES}, float(
         np.median(walls[1:] or walls)
