@@ -45,7 +45,7 @@ struct SrArgs {
     const float *previous, *geo, *motion, *normal, *depth;
     float depth_thr, normal_thr;
     bool fallback, erode;
-    float *unmasked, *before, *warped, *valid;
+    float *unmasked, *before, *valid;  // unmasked: the output, masked in place
     int64_t c, h, w;
 };
 
@@ -76,15 +76,19 @@ RTD_INLINE bool tap_ok(const SrArgs &a, const float *geo, float fx, float fy, co
     return inside && depth_ok && dn <= p.normal_tol;
 }
 
+/* The taps' flat indices and weights (0 for a failed tap) come first, branch-free; then each
+ * channel sums its taps in a register, in the order the numba kernel adds them into its
+ * accumulator array ((0 + w0 v0) + w1 v1 ...), so the sums are the same bits. */
 RTD_CLONES void sr_warp(const SrArgs &a, int64_t begin, int64_t end) {
     const int64_t c = a.c, h = a.h, w = a.w, hw = h * w;
     const float eps = 1e-2f, zero = 0.0f, one = 1.0f;
-    std::unique_ptr<float[]> acc(new float[static_cast<size_t>(c)]);
     for (int64_t row = begin; row < end; ++row) {
         const int64_t n = row / h, y = row - n * h;
         const float *prev = a.previous + n * c * hw, *geo = a.geo + n * 4 * hw;
         const float *depth = a.depth + n * hw, *normal = a.normal + n * 3 * hw;
         const float *mx = a.motion + n * 2 * hw, *my = mx + hw;
+        float *out_row = a.unmasked + n * c * hw + y * w;
+        float *before_row = a.before + n * hw + y * w;
         const int64_t yd = y < h - 1 ? y + 1 : y, yu = y < h - 1 ? y : y - 1;
         for (int64_t x = 0; x < w; ++x) {
             const int64_t xr = x < w - 1 ? x + 1 : x, xl = x < w - 1 ? x : x - 1;
@@ -108,39 +112,56 @@ RTD_CLONES void sr_warp(const SrArgs &a, int64_t begin, int64_t end) {
             const float py = static_cast<float>(y) + my[at];
             const float x0 = std::floor(px), y0 = std::floor(py);
             const float ax = px - x0, ay = py - y0;
-            for (int64_t k = 0; k < c; ++k) acc[k] = zero;
+            int64_t idx[4];
+            float wgt[4];
             float total = zero;
             for (int t = 0; t < 4; ++t) {
                 const int ox = t & 1, oy = t >> 1;
                 const float wx = ox ? ax : one - ax, wy = oy ? ay : one - ay;
-                float wgt = wx * wy;
-                int64_t i = 0;
-                if (!tap_ok(a, geo, x0 + static_cast<float>(ox), y0 + static_cast<float>(oy), p, &i))
-                    wgt = zero;
-                for (int64_t k = 0; k < c; ++k) acc[k] = acc[k] + wgt * prev[k * hw + i];
-                total = total + wgt;
+                const bool ok = tap_ok(a, geo, x0 + static_cast<float>(ox),
+                                       y0 + static_cast<float>(oy), p, &idx[t]);
+                wgt[t] = ok ? wx * wy : zero;
+                total = total + wgt[t];
             }
             bool ok_all = total >= eps;
-            float *out = a.unmasked + n * c * hw + at;
-            for (int64_t k = 0; k < c; ++k) out[k * hw] = ok_all ? acc[k] / total : zero;
+            float *out = out_row + x;
+            if (ok_all) {
+                const float *p0 = prev + idx[0], *p1 = prev + idx[1];
+                const float *p2 = prev + idx[2], *p3 = prev + idx[3];
+                for (int64_t k = 0; k < c; ++k) {
+                    const int64_t o = k * hw;
+                    float acc = zero + wgt[0] * p0[o];
+                    acc = acc + wgt[1] * p1[o];
+                    acc = acc + wgt[2] * p2[o];
+                    acc = acc + wgt[3] * p3[o];
+                    out[o] = acc / total;
+                }
+            } else {
+                for (int64_t k = 0; k < c; ++k) out[k * hw] = zero;
+            }
             if (a.fallback && !ok_all) {
                 const float rx = std::floor(px + 0.5f), ry = std::floor(py + 0.5f);
-                for (int64_t k = 0; k < c; ++k) acc[k] = zero;
-                float count = zero;
+                int64_t taps[9];
+                int count_taps = 0;
                 for (int oy = -1; oy <= 1; ++oy)
                     for (int ox = -1; ox <= 1; ++ox) {
                         int64_t i = 0;
-                        if (tap_ok(a, geo, rx + static_cast<float>(ox), ry + static_cast<float>(oy), p, &i)) {
-                            for (int64_t k = 0; k < c; ++k) acc[k] = acc[k] + prev[k * hw + i];
-                            count = count + one;
-                        }
+                        if (tap_ok(a, geo, rx + static_cast<float>(ox),
+                                   ry + static_cast<float>(oy), p, &i))
+                            taps[count_taps++] = i;
                     }
-                if (count > zero) {
-                    for (int64_t k = 0; k < c; ++k) out[k * hw] = acc[k] / count;
+                if (count_taps > 0) {
+                    const float count = static_cast<float>(count_taps);
+                    for (int64_t k = 0; k < c; ++k) {
+                        const float *pk = prev + k * hw;
+                        float acc = zero;
+                        for (int t = 0; t < count_taps; ++t) acc = acc + pk[taps[t]];
+                        out[k * hw] = acc / count;
+                    }
                     ok_all = true;
                 }
             }
-            a.before[n * hw + at] = ok_all ? one : zero;
+            before_row[x] = ok_all ? one : zero;
         }
     }
 }
@@ -157,9 +178,11 @@ RTD_CLONES void sr_erode(const SrArgs &a, int64_t begin, int64_t end) {
                     for (int64_t xx = x > 0 ? x - 1 : 0; xx < (x + 2 < w ? x + 2 : w); ++xx)
                         m = min_like_numba(m, before[yy * w + xx]);
             a.valid[n * hw + y * w + x] = m;
+            // masked in place: a mask of 1 leaves every value as it is (x * 1 == x, NaN too)
+            if (m == 1.0f) continue;
             for (int64_t k = 0; k < c; ++k) {
                 const int64_t i = (n * c + k) * hw + y * w + x;
-                a.warped[i] = a.unmasked[i] * m;
+                a.unmasked[i] = a.unmasked[i] * m;
             }
         }
     }
@@ -178,7 +201,7 @@ void svgf_reproject_run(const Tensor *in, Tensor *out, const int64_t *attrs, int
     // in place (element by element: no pixel reads another's), saving a frame-sized buffer
     std::unique_ptr<float[]> before(new float[static_cast<size_t>(n * hw)]);
     a.unmasked = out[0].data, a.before = before.get();
-    a.warped = out[0].data, a.valid = out[1].data;
+    a.valid = out[1].data;
     parallel_for(n * a.h, threads, n * hw * (a.c + 8) * 13,
                  [&](int64_t b, int64_t e) { sr_warp(a, b, e); });
     parallel_for(n * a.h, threads, n * hw * (a.c + 9),
