@@ -52,9 +52,9 @@ struct SrArgs {
 /* kernels/svgf_reproject.py _clamped_index: an integer-valued float position -> its clamped
  * pixel index (NaN and below 0: 0). */
 RTD_INLINE int64_t clamped_index(float f, int64_t size) {
-    if (!(f > 0.0f)) return 0;
-    if (f > static_cast<float>(size - 1)) return size - 1;
-    return static_cast<int64_t>(f);
+    const float last = static_cast<float>(size - 1);  // exact: sizes are far below 2^24
+    const float low = f > 0.0f ? f : 0.0f;            // selects (maxss / minss), no branch
+    return static_cast<int64_t>(low > last ? last : low);
 }
 
 struct Pixel {
@@ -68,12 +68,13 @@ RTD_INLINE bool tap_ok(const SrArgs &a, const float *geo, float fx, float fy, co
     const int64_t hw = a.h * a.w;
     const int64_t i = clamped_index(fy, a.h) * a.w + clamped_index(fx, a.w);
     *index = i;
-    const bool inside = fx >= 0.0f && fx <= static_cast<float>(a.w - 1) && fy >= 0.0f &&
-                        fy <= static_cast<float>(a.h - 1);
+    // bitwise: no branch on the tests, whose outcomes vary from pixel to pixel
+    const bool inside = (fx >= 0.0f) & (fx <= static_cast<float>(a.w - 1)) & (fy >= 0.0f) &
+                        (fy <= static_cast<float>(a.h - 1));
     const float d0 = geo[i] - p.n0, d1 = geo[hw + i] - p.n1, d2 = geo[2 * hw + i] - p.n2;
     const float dn = std::sqrt(d0 * d0 + d1 * d1 + d2 * d2);
     const bool depth_ok = std::fabs(geo[3 * hw + i] - p.z) <= p.depth_tol;
-    return inside && depth_ok && dn <= p.normal_tol;
+    return inside & depth_ok & (dn <= p.normal_tol);
 }
 
 /* The taps' flat indices and weights (0 for a failed tap) come first, branch-free; then each
