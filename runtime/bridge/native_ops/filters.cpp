@@ -384,6 +384,7 @@ inline void wsf_horizontal(const float *cur, const float *vpre, int64_t s, int64
             add3(q_row, cur + t * w, vpre + (t - 1) * w, w);
         float *qt_t = qt + t * nb;  // qt[j, t*nb + b] = q[b, j]
         for (int64_t j = 0; j < s; ++j)
+#pragma GCC unroll 8
             for (int64_t b = 0; b < nb; ++b) qt_t[j * m + b] = q[b * s + j];
     }
     std::copy(qt + (s - 1) * m, qt + s * m, suf + (s - 1) * m);
@@ -394,7 +395,9 @@ inline void wsf_horizontal(const float *cur, const float *vpre, int64_t s, int64
 
 RTD_CLONES void wsf_tasks(const WsfArgs &a, int64_t begin, int64_t end) {
     const int64_t n_ch = a.n_ch, h = a.h, w = a.w, planes = n_ch + 1;
-    std::vector<float> cur_b, nxt_b, vpre_b, q, qt, suf, inv;
+    // kept by each thread from call to call (a few MB at 1080p): fresh buffers per call
+    // would fault their pages in again on every call
+    thread_local std::vector<float> cur_b, nxt_b, vpre_b, q, qt, suf, inv;
     for (int64_t task = begin; task < end; ++task) {
         const int64_t n = a.task_n[task], i = a.task_i[task];
         const int64_t b0 = a.task_b0[task], b1 = a.task_b1[task];
@@ -434,6 +437,7 @@ RTD_CLONES void wsf_tasks(const WsfArgs &a, int64_t begin, int64_t end) {
                     float *out_row = a.out + ((n * a.count * n_ch + i * n_ch + c) * h + b * s + t) * w;
                     const float *num_t = suf.data() + t * nb, *inv_t = inv.data() + t * nb;
                     for (int64_t j = 0; j < s; ++j)
+#pragma GCC unroll 8
                         for (int64_t bb = 0; bb < (w - j + s - 1) / s; ++bb)
                             out_row[bb * s + j] = num_t[j * m + bb] * inv_t[j * m + bb];
                 }
