@@ -280,17 +280,49 @@ struct TaArgs {
     int64_t n_ch, h, w;
 };
 
+/* TemporalAccumulation's per-pixel step of a row: the history test, n and alpha. Every value
+ * is computed and chosen by selects, nothing branched on (the tests' outcomes vary from pixel
+ * to pixel): a loop of its own over plain row pointers, which GCC vectorises. */
+RTD_INLINE void ta_validity_row(const TaArgs &a, const float *RESTRICT mx,
+                                const float *RESTRICT my, float y_f, const float *RESTRICT d_row,
+                                const float *RESTRICT nx, const float *RESTRICT ny,
+                                const float *RESTRICT nz, const float *RESTRICT count,
+                                const float *RESTRICT pnx, const float *RESTRICT pny,
+                                const float *RESTRICT pnz, const float *RESTRICT prev_depth,
+                                float *RESTRICT ok, float *RESTRICT alpha,
+                                float *RESTRICT new_len, int64_t w) {
+    const float zero = 0.0f, one = 1.0f, half = 0.5f, lo = -0.5f;
+    const float hi_x = static_cast<float>(w) - half, hi_y = static_cast<float>(a.h) - half;
+    const float keep = a.keep, tolerance = a.tolerance, threshold = a.threshold;
+    const float min_alpha = a.min_alpha, max_history = a.max_history;
+    for (int32_t x = 0; x < static_cast<int32_t>(w); ++x) {
+        const float px = static_cast<float>(x) + mx[x];
+        const float py = y_f + my[x];
+        const bool inside = (px >= lo) & (px <= hi_x) & (py >= lo) & (py <= hi_y);
+        const float d = d_row[x];
+        const bool depth_ok = std::fabs(prev_depth[x] - d) < tolerance * std::fabs(d);
+        float dot = pnx[x] * nx[x];
+        dot += pny[x] * ny[x];
+        dot += pnz[x] * nz[x];
+        const float valid = (inside & depth_ok & (dot > threshold)) ? one : zero;
+        const bool kept = valid * keep > half;
+        ok[x] = kept ? one : zero;
+        const float n_next = (kept ? count[x] : zero) + one;
+        alpha[x] = max_like_numba(one / n_next, min_alpha);
+        new_len[x] = min_like_numba(n_next, max_history);
+    }
+}
+
 RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64_t end) {
     const int64_t n_ch = a.n_ch, h = a.h, w = a.w, hw = h * w;
     std::vector<int32_t> taps(static_cast<size_t>(4 * w));
     std::vector<float> weights(static_cast<size_t>(4 * w));
     std::vector<float> warped_buffer(static_cast<size_t>((n_ch + 5) * w));
-    std::vector<unsigned char> ok_buffer(static_cast<size_t>(w));
+    std::vector<float> ok_buffer(static_cast<size_t>(w));  // 1 / 0: float, as the other rows
     std::vector<const float *> planes(static_cast<size_t>(n_ch + 5));
     float *warped = warped_buffer.data();
-    unsigned char *RESTRICT ok = ok_buffer.data();
-    const float zero = 0.0f, one = 1.0f, half = 0.5f;
-    const float lo = -0.5f, hi_x = static_cast<float>(w) - half, hi_y = static_cast<float>(h) - half;
+    float *RESTRICT ok = ok_buffer.data();
+    const float zero = 0.0f, one = 1.0f;
     for (int64_t row = begin; row < end; ++row) {
         const int64_t n = row / h, y = row - n * h;
         const float *RESTRICT mx = a.motion + (n * 2 * h + y) * w;
@@ -311,22 +343,8 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
         float *RESTRICT alpha = a.blend + (n * h + y) * w;
         float *RESTRICT new_len = a.next_ta + ((n * (n_ch + 1) + n_ch) * h + y) * w;
         const float y_f = static_cast<float>(y);
-        for (int32_t x = 0; x < static_cast<int32_t>(w); ++x) {
-            float px = static_cast<float>(x) + mx[x];
-            float py = y_f + my[x];
-            bool inside = (px >= lo) & (px <= hi_x) & (py >= lo) & (py <= hi_y);
-            float d = d_row[x];
-            bool depth_ok = std::fabs(prev_depth[x] - d) < a.tolerance * std::fabs(d);
-            float dot = pnx[x] * nx[x];
-            dot += pny[x] * ny[x];
-            dot += pnz[x] * nz[x];
-            float valid = (inside & depth_ok & (dot > a.threshold)) ? one : zero;
-            bool kept = valid * a.keep > half;
-            ok[x] = kept;
-            float n_next = (kept ? count[x] : zero) + one;
-            alpha[x] = max_like_numba(one / n_next, a.min_alpha);
-            new_len[x] = min_like_numba(n_next, a.max_history);
-        }
+        ta_validity_row(a, mx, my, y_f, d_row, nx, ny, nz, count, pnx, pny, pnz, prev_depth, ok,
+                        alpha, new_len, w);
         for (int64_t c = 0; c < n_ch; ++c) {  // the blend, one channel row at a time
             const float *RESTRICT cur = a.current + ((n * n_ch + c) * h + y) * w;
             const float *RESTRICT hist = warped + c * w;
@@ -334,7 +352,7 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
             float *RESTRICT nta = a.next_ta + ((n * (n_ch + 1) + c) * h + y) * w;
             for (int64_t x = 0; x < w; ++x) {
                 float al = alpha[x];
-                float kept = ok[x] ? hist[x] : zero;
+                float kept = ok[x] != zero ? hist[x] : zero;
                 float value = al * cur[x] + (one - al) * kept;
                 acc[x] = value;
                 nta[x] = value;
@@ -351,7 +369,6 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
  * torch form's order, a rejected tap adding nothing; then the renormalisation and the blend. */
 RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, int64_t begin, int64_t end) {
     const int64_t n_ch = a.n_ch, h = a.h, w = a.w, hw = h * w;
-    std::vector<float> acc(static_cast<size_t>(n_ch + 1));
     const float zero = 0.0f, one = 1.0f, half = 0.5f, cut = 0.01f;
     const float x_max = static_cast<float>(w - 1), y_max = static_cast<float>(h - 1);
     for (int64_t row = begin; row < end; ++row) {
@@ -375,31 +392,44 @@ RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, int64_t begi
             const float ex = one - ax, ey = one - ay;
             const float d = d_row[x];
             const float tol = a.tolerance * std::fabs(d);
-            std::fill(acc.begin(), acc.end(), zero);
-            float total = zero;
+            // the four taps tested first, by selects (their outcomes vary pixel to pixel); a
+            // rejected tap reads a safe pixel and adds nothing (acc kept, as numba's continue)
+            int64_t idx[4];
+            float wt[4];
+            bool ok[4];
             for (int t = 0; t < 4; ++t) {
                 const bool right = t & 1, down = t >> 1;
                 const float fx = right ? x0 + one : x0;
                 const float fy = down ? y0 + one : y0;
-                const float weight = (right ? ax : ex) * (down ? ay : ey);
-                if (!((fx >= zero) & (fx <= x_max) & (fy >= zero) & (fy <= y_max))) continue;
-                const int64_t i = static_cast<int64_t>(fy) * w + static_cast<int64_t>(fx);
-                if (!(std::fabs(geo[3 * hw + i] - d) < tol)) continue;
+                wt[t] = (right ? ax : ex) * (down ? ay : ey);
+                const bool inside = (fx >= zero) & (fx <= x_max) & (fy >= zero) & (fy <= y_max);
+                const int64_t i = static_cast<int64_t>(inside ? fy : zero) * w +
+                                  static_cast<int64_t>(inside ? fx : zero);
+                const bool depth_ok = std::fabs(geo[3 * hw + i] - d) < tol;
                 float dot = geo[i] * nx[x];
                 dot += geo[hw + i] * ny[x];
                 dot += geo[2 * hw + i] * nz[x];
-                if (!(dot > a.threshold)) continue;
-                for (int64_t c = 0; c < n_ch + 1; ++c) acc[c] = acc[c] + weight * ta[c * hw + i];
-                total = total + weight;
+                idx[t] = i;
+                ok[t] = inside & depth_ok & (dot > a.threshold);
+            }
+            float total = zero;
+            for (int t = 0; t < 4; ++t) total = ok[t] ? total + wt[t] : total;
+            float count_sum = zero;
+            for (int t = 0; t < 4; ++t) {
+                const float v = ta[n_ch * hw + idx[t]];
+                count_sum = ok[t] ? count_sum + wt[t] * v : count_sum;
             }
             const float valid = total >= cut ? one : zero;
             const bool kept = valid * a.keep > half;
-            const float n_next = (kept ? acc[n_ch] / total : zero) + one;
+            const float n_next = (kept ? count_sum / total : zero) + one;
             const float al = max_like_numba(one / n_next, a.min_alpha);
             alpha[x] = al;
             new_len[x] = min_like_numba(n_next, a.max_history);
             for (int64_t c = 0; c < n_ch; ++c) {
-                const float hist = kept ? acc[c] / total : zero;
+                const float *plane = ta + c * hw;
+                float sum = zero;
+                for (int t = 0; t < 4; ++t) sum = ok[t] ? sum + wt[t] * plane[idx[t]] : sum;
+                const float hist = kept ? sum / total : zero;
                 const float value = al * a.current[((n * n_ch + c) * h + y) * w + x] + (one - al) * hist;
                 a.accumulated[((n * n_ch + c) * h + y) * w + x] = value;
                 a.next_ta[((n * (n_ch + 1) + c) * h + y) * w + x] = value;
