@@ -16,6 +16,7 @@
 #pragma GCC optimize("fp-contract=fast")
 #endif
 
+#include <atomic>
 #include <mutex>
 
 #include "kernels_common.h"
@@ -189,6 +190,7 @@ struct FusionArgs {
     const float *images, *logits;
     float *out;
     int64_t n_s, n_ch, h, w;
+    std::atomic<bool> *nonfinite;  // set by a row whose logits or output are not all finite
 };
 
 RTD_CLONES void kernel_fusion_rows(const FusionArgs &a, int64_t begin, int64_t end) {
@@ -202,6 +204,12 @@ RTD_CLONES void kernel_fusion_rows(const FusionArgs &a, int64_t begin, int64_t e
         const float *logits = a.logits + (n * n_s * h + y) * w;
         const float *images = a.images + (n * n_s * a.n_ch * h + y) * w;
         float *out = a.out + (n * a.n_ch * h + y) * w;
+        bool finite = true;  // tested on the rows in hand, not in passes of their own
+        for (int64_t i = 0; i < n_s; ++i) finite = finite && all_finite(logits + i * hw, w);
+        if (!finite) {  // the whole output becomes NaN (kernel_fusion_run)
+            a.nonfinite->store(true, std::memory_order_relaxed);
+            continue;
+        }
         std::copy(logits, logits + w, top);
         for (int64_t i = 1; i < n_s; ++i) max_into(top, logits + i * hw, w);
         for (int64_t i = 0; i < n_s; ++i) {  // softmax, max subtracted
@@ -234,6 +242,7 @@ RTD_CLONES void kernel_fusion_rows(const FusionArgs &a, int64_t begin, int64_t e
                 const float *RESTRICT s = images + (i * a.n_ch + c) * hw;
                 for (int64_t x = 0; x < w; ++x) o[x] += p[x] * s[x];
             }
+            if (!all_finite(o, w)) a.nonfinite->store(true, std::memory_order_relaxed);
         }
     }
 }
@@ -241,15 +250,13 @@ RTD_CLONES void kernel_fusion_rows(const FusionArgs &a, int64_t begin, int64_t e
 void kernel_fusion_run(const Tensor *in, Tensor *out, const int64_t *, int threads) {
     float *o = out[0].data;
     const int64_t size = out[0].size();
-    if (!all_finite(in[1].data, in[1].size())) {  // as nan_on_nonfinite(2, inputs=(1,))
-        std::fill(o, o + size, std::nanf(""));
-        return;
-    }
+    std::atomic<bool> nonfinite{false};
     FusionArgs a{in[0].data, in[1].data, o, in[1].dims[1], out[0].dims[1], in[0].dims[2],
-                 in[0].dims[3]};
+                 in[0].dims[3], &nonfinite};
     parallel_for(in[0].dims[0] * a.h, threads, in[0].size() + 8 * in[1].size(),
                  [&](int64_t b, int64_t e) { kernel_fusion_rows(a, b, e); });
-    if (!all_finite(o, size)) std::fill(o, o + size, std::nanf(""));
+    // as nan_on_nonfinite(2, inputs=(1,)): a non-finite logit or output, NaN everywhere
+    if (nonfinite.load()) std::fill(o, o + size, std::nanf(""));
 }
 
 /* ------------------------------------------------------------------ AdaptiveFusion */
