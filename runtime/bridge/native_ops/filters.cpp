@@ -137,31 +137,42 @@ inline void exp_row(float *RESTRICT e, float *RESTRICT total, const float *RESTR
     }
 }
 
+constexpr int64_t SKA_TILE = 256;  // pixels of a row taken through all the taps at once
+
+/* Per output row: the k source rows padded once, then tiles of SKA_TILE pixels, each through
+ * all k x k taps (max, exponentials, their sum, the channels' weighted sums) while its rows
+ * stay in L1 (a whole 1080p row's exponentials, sums and outputs do not). Each value is the
+ * same sum in the same tap order as row by row. */
 RTD_CLONES void softmax_kernel_apply_rows(const FilterArgs &a, int64_t begin, int64_t end) {
-    const int64_t k = a.k, d = a.d, w = a.w, h = a.h, kk = k * k;
-    const int64_t wp = w + 2 * (k / 2) * d;
-    std::vector<float> buffer(static_cast<size_t>(a.n_ch * wp + 3 * w));
-    float *padded = buffer.data(), *e = padded + a.n_ch * wp, *top = e + w, *total = top + w;
+    const int64_t k = a.k, d = a.d, w = a.w, h = a.h, kk = k * k, hw = h * w;
+    const int64_t wp = w + 2 * (k / 2) * d, n_ch = a.n_ch;
+    std::vector<float> buffer(static_cast<size_t>(k * n_ch * wp + 3 * SKA_TILE));
+    float *padded = buffer.data(), *e = padded + k * n_ch * wp, *top = e + SKA_TILE;
+    float *total = top + SKA_TILE;
     for (int64_t row = begin; row < end; ++row) {
         const int64_t n = row / h, y = row - n * h;
         const float *logits = a.weights + (n * kk * h + y) * w;  // tap t at logits + t h w
-        float *out = a.out + (n * a.n_ch * h + y) * w;
-        std::copy(logits, logits + w, top);
-        for (int64_t t = 1; t < kk; ++t) max_into(top, logits + t * h * w, w);
-        std::fill(total, total + w, 0.0f);
-        for (int64_t c = 0; c < a.n_ch; ++c) std::fill(out + c * h * w, out + c * h * w + w, 0.0f);
-        for (int64_t i = 0; i < k; ++i) {
-            pad_source_rows(a, n, y, i, padded);
-            for (int64_t j = 0; j < k; ++j) {
-                exp_row(e, total, logits + (i * k + j) * h * w, top, w);
-                for (int64_t c = 0; c < a.n_ch; ++c)
-                    fma_row(out + c * h * w, e, padded + c * wp + j * d, w);
+        float *out = a.out + (n * n_ch * h + y) * w;
+        for (int64_t i = 0; i < k; ++i) pad_source_rows(a, n, y, i, padded + i * n_ch * wp);
+        for (int64_t x0 = 0; x0 < w; x0 += SKA_TILE) {
+            const int64_t m = std::min(SKA_TILE, w - x0);
+            std::copy(logits + x0, logits + x0 + m, top);
+            for (int64_t t = 1; t < kk; ++t) max_into(top, logits + t * hw + x0, m);
+            std::fill(total, total + m, 0.0f);
+            for (int64_t c = 0; c < n_ch; ++c) std::fill(out + c * hw + x0, out + c * hw + x0 + m, 0.0f);
+            for (int64_t i = 0; i < k; ++i) {
+                const float *rows_i = padded + i * n_ch * wp + x0;
+                for (int64_t j = 0; j < k; ++j) {
+                    exp_row(e, total, logits + (i * k + j) * hw + x0, top, m);
+                    for (int64_t c = 0; c < n_ch; ++c)
+                        fma_row(out + c * hw + x0, e, rows_i + c * wp + j * d, m);
+                }
             }
-        }
-        for (int64_t x = 0; x < w; ++x) total[x] = 1.0f / total[x];
-        for (int64_t c = 0; c < a.n_ch; ++c) {
-            float *o = out + c * h * w;
-            for (int64_t x = 0; x < w; ++x) o[x] *= total[x];
+            for (int64_t x = 0; x < m; ++x) total[x] = 1.0f / total[x];
+            for (int64_t c = 0; c < n_ch; ++c) {
+                float *o = out + c * hw + x0;
+                for (int64_t x = 0; x < m; ++x) o[x] *= total[x];
+            }
         }
     }
 }
