@@ -52,9 +52,7 @@ struct SrArgs {
 /* kernels/svgf_reproject.py _clamped_index: an integer-valued float position -> its clamped
  * pixel index (NaN and below 0: 0). */
 RTD_INLINE int64_t clamped_index(float f, int64_t size) {
-    const float last = static_cast<float>(size - 1);  // exact: sizes are far below 2^24
-    const float low = f > 0.0f ? f : 0.0f;            // selects (maxss / minss), no branch
-    return static_cast<int64_t>(low > last ? last : low);
+    return static_cast<int64_t>(clamped(f, static_cast<float>(size - 1)));  // exact: size < 2^24
 }
 
 struct Pixel {

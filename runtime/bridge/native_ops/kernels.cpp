@@ -171,12 +171,6 @@ std::string reproject_shapes(const Tensor *in, const int64_t *, Shape *out) {
     return "";
 }
 
-/* A source coordinate clamped to [0, last]; NaN lands in the image too (compares false). */
-RTD_INLINE float clamped(float v, float last) {
-    v = v > 0.0f ? v : 0.0f;
-    return v < last ? v : last;
-}
-
 /* kernels/reproject.py _taps: the flat offsets of each pixel's four bilinear taps and their
  * weights, in float32 as the torch form computes them. Two loops, the offsets then the weights
  * (each position computed twice, the same bits): GCC vectorises either, not one loop with all

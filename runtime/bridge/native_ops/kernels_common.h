@@ -43,6 +43,12 @@ namespace {  // each file its own copy, compiled with its own contraction settin
 inline float max_like_numba(float acc, float v) { return v > acc ? v : acc; }  // numba's max(acc, v)
 inline float min_like_numba(float acc, float v) { return v < acc ? v : acc; }  // numba's min(acc, v)
 
+/* v clamped to [0, last] by selects (no branch); NaN lands on 0 (it compares false). */
+inline float clamped(float v, float last) {
+    v = v > 0.0f ? v : 0.0f;
+    return v < last ? v : last;
+}
+
 inline float bits_to_float(int32_t bits) {
     float f;
     std::memcpy(&f, &bits, sizeof f);
