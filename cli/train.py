@@ -215,6 +215,16 @@ def train_command(
             "pixels do not swamp the rest of the batch (0: off).",
         ),
     ] = 0.0,
+    dark_edge_weight: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="Add this multiple of the relative L1 of the dark pixels beside bright ones "
+            "(reference at most 1/20 of the brightest within 2 px, that one >= 0.5), zero "
+            "elsewhere, averaged over all pixels: where a kernel smears a small light into its "
+            "dark neighbours (0: off).",
+        ),
+    ] = 0.0,
     oversample: Annotated[
         list[str] | None,
         typer.Option(
@@ -397,6 +407,7 @@ def train_command(
             loss=loss.value,
             relmse_weight=relmse_weight,
             rel_l1_weight=rel_l1_weight,
+            dark_edge_weight=dark_edge_weight,
             rotations=rotations,
             permute=permute_channels,
             exposure=exposure.value,

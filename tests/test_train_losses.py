@@ -9,6 +9,8 @@ import torch
 
 from rtdenoise.models.losses import (
     LOSSES,
+    dark_edge_l1,
+    dark_edge_mask,
     l1_ms_ssim_loss,
     relative_l1,
     relmse,
@@ -186,3 +188,33 @@ def test_rel_l1_weight_adds_a_bounded_unsaturated_term():
         assert per_pixel == pytest.approx(1 / (0.02 + 0.1), rel=1e-5)
     with pytest.raises(ValueError, match="rel_l1_weight"):
         training_loss("smape", model, rel_l1_weight=-1.0)
+
+
+def test_dark_edge_weight_weighs_only_the_dark_pixels_beside_a_bright_one():
+    """--dark-edge-weight adds w x the relative L1 of the pixels whose reference is at most
+    1/20 of the brightest within 2 px (that one >= 0.5): the 24 neighbours of a small light on a
+    dark wall, not the light, not the wall further out, not a dim patch nor a mild edge."""
+    ref = torch.full((1, 2, 3, 16, 16), 0.01)
+    ref[..., 8, 8] = 10.0  # a small light
+    ref[..., 1:4, 1:4] = 0.3  # dim: below 0.5
+    ref[..., 11:, 11:] = 0.1  # a corner at 0.1 holding a bright patch: a 10:1 edge
+    ref[..., 13:, 13:] = 1.0
+    mask = dark_edge_mask(ref)
+    assert mask.shape == (1, 2, 1, 16, 16)
+    light = torch.zeros(16, 16)
+    light[6:11, 6:11] = 1.0
+    light[8, 8] = 0.0
+    torch.testing.assert_close(mask[0, 0, 0], light)
+    out = ref.clone()
+    out[..., 8, 9] = 5.0  # smeared beside the light: counted
+    out[..., 0, 15] = 5.0  # wrong on the wall far off: not counted
+    out[..., 8, 8] = 1.0  # the light itself: not counted
+    expected = 3 * 2 * (5.0 - 0.01) / (0.01 + 0.1) / ref.numel()
+    assert float(dark_edge_l1(out, ref)) == pytest.approx(expected, rel=1e-5)
+    model = build_model("afn", TINY)
+    fn = training_loss("smape", model, dark_edge_weight=2.0)
+    torch.testing.assert_close(
+        fn(out, ref, 0.25), sequence_loss(out, ref, 0.25) + 2.0 * dark_edge_l1(out, ref)
+    )
+    with pytest.raises(ValueError, match="dark_edge_weight"):
+        training_loss("smape", model, dark_edge_weight=-1.0)
