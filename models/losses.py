@@ -53,7 +53,14 @@ def relative_l1(
     smeared onto a dark wall is almost free), but its gradient is bounded by 1 / eps whatever
     the error: a few smeared pixels cannot swamp the rest of the batch, as relMSE's squares do.
     """
-    return ((output - target).abs() / (target.abs() + eps)).mean()
+    return relative_error(output, target, eps).mean()
+
+
+def relative_error(
+    output: torch.Tensor, target: torch.Tensor, eps: float = REL_L1_EPS
+) -> torch.Tensor:
+    """Per pixel and channel |o - t| / (|t| + eps): what `relative_l1` averages."""
+    return (output - target).abs() / (target.abs() + eps)
 
 
 # A pixel is "dark beside a bright one" when the brightest reference pixel within
@@ -82,8 +89,7 @@ def dark_edge_l1(
     zero elsewhere, averaged over every pixel: a weight on exactly the pixels where a kernel
     smears a small light into its dark neighbours, which the plain relative L1 weighs like any
     other (they are under 1 % of a clip)."""
-    rel = (output - target).abs() / (target.abs() + eps)
-    return (rel * dark_edge_mask(target)).mean()
+    return (relative_error(output, target, eps) * dark_edge_mask(target)).mean()
 
 
 def temporal_smape(
