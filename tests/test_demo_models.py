@@ -21,8 +21,9 @@ from rtdenoise.runtime.sequences.metrics import SequenceMetrics
 from rtdenoise.runtime.sequences.samples import sample_features_of, samples_from_buffers
 from rtdenoise.shipped import MODELS_DIR, sample_sequences
 
-# family -> minimum PSNR gain over the noisy input, dB
-MIN_GAIN_DB = {"afn": 6.0, "wskp": 6.0, "nbg": 6.0, "crossreg": 6.0, "affinity": 6.0}
+# demo (the file's stem: a family, or `<family>-small` for a family's faster second model) ->
+# minimum PSNR gain over the noisy input, dB
+MIN_GAIN_DB = dict.fromkeys(("afn", "wskp", "wskp-small", "nbg", "crossreg", "affinity"), 6.0)
 FAMILIES = sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) if MODELS_DIR.is_dir() else []
 
 

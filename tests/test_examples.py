@@ -51,11 +51,11 @@ def test_readme_embed_snippet_is_the_example(tmp_path):
         np.testing.assert_array_equal(np.stack([got[c] for c in "RGB"]), expected)
 
 
-FAMILIES = ("afn", "wskp", "nbg", "affinity", "crossreg")  # every shipped demo
+DEMOS = ("afn", "wskp", "wskp-small", "nbg", "affinity", "crossreg")  # every shipped demo
 
 
-def test_the_demos_are_these_five():
-    assert sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) == sorted(FAMILIES)
+def test_the_demos_are_these_six():
+    assert sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) == sorted(DEMOS)
 
 
 def test_plain_host_imports_only_onnxruntime_and_numpy():
@@ -69,13 +69,13 @@ def test_plain_host_imports_only_onnxruntime_and_numpy():
     assert imported == {"__future__", "collections", "json", "sys", "numpy", "onnxruntime"}
 
 
-@pytest.mark.parametrize("family", FAMILIES)
-def test_plain_host_runs_every_demo_without_rtdenoise(family):
+@pytest.mark.parametrize("demo", DEMOS)
+def test_plain_host_runs_every_demo_without_rtdenoise(demo):
     """Its own main (synthetic frames: 2 samples per pixel for affinity), rtdenoise blocked."""
     path = EXAMPLES / "plain_onnxruntime_host.py"
     code = (
         "import runpy, sys; sys.modules['rtdenoise'] = None; "
-        f"sys.argv = ['host', {str(MODELS_DIR / f'{family}.onnx')!r}, '3']; "
+        f"sys.argv = ['host', {str(MODELS_DIR / f'{demo}.onnx')!r}, '3']; "
         f"runpy.run_path({str(path)!r}, run_name='__main__')"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
@@ -83,14 +83,14 @@ def test_plain_host_runs_every_demo_without_rtdenoise(family):
     assert proc.stdout.count("output (3, 48, 64)") == 3
 
 
-@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("demo", DEMOS)
 @pytest.mark.parametrize("fast_kernels", [True, False])
-def test_plain_host_matches_denoiser_over_8_frames(family, fast_kernels):
+def test_plain_host_matches_denoiser_over_8_frames(demo, fast_kernels):
     """The same 8 frames with a camera cut before frame 5: equal within 1e-5, state fed back
     (a host that knows nothing of online learning zeroes every state at a cut, so it restarts
     crossreg's learning there, as `Denoiser(relearn_at_cuts=True)` does)."""
     plain = load_example("plain_onnxruntime_host")
-    model = MODELS_DIR / f"{family}.onnx"
+    model = MODELS_DIR / f"{demo}.onnx"
     host = plain.PlainHost(str(model))
     den = Denoiser(model, fast_kernels=fast_kernels, relearn_at_cuts=True)
     frames = list(iter_sequence(sample_sequences()[0], buffers=den.required_buffers))
@@ -101,7 +101,7 @@ def test_plain_host_matches_denoiser_over_8_frames(family, fast_kernels):
             host.reset()
             den.reset()
         buffers = frame.buffers
-        if family == "affinity":  # the host makes S = 1 itself, from the pixel buffers
+        if demo == "affinity":  # the host makes S = 1 itself, from the pixel buffers
             buffers = {k: v for k, v in buffers.items() if k != "samples"}
         ours, theirs = host.process(buffers), den.process(frame.buffers)
         worst = max(worst, float(np.max(np.abs(ours - theirs) / (1 + np.abs(theirs)))))
