@@ -18,6 +18,13 @@ def sample_sequences() -> list[Path]:
     return sorted(p for p in SEQUENCES_DIR.iterdir() if p.is_dir())
 
 
+def demo_names() -> list[str]:
+    """The shipped demo models as `demo:<name>` specs (a family, or `<family>-small`), sorted."""
+    if not MODELS_DIR.is_dir():
+        return []
+    return sorted(f"demo:{p.stem}" for p in MODELS_DIR.glob("*.onnx"))
+
+
 def demo_model(family: str, suffix: str) -> Path:
     """Path of the shipped demo model `demo:<family>` (suffix '.pt' or '.onnx')."""
     path = MODELS_DIR / f"{family}{suffix}"

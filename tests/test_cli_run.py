@@ -61,6 +61,9 @@ def test_default_model_is_the_shipped_demo_and_help():
     assert DEFAULT_MODEL == "demo:wskp"
     res = invoke("--help")
     assert res.exit_code == 0 and "blender" in res.stdout and "canonical" in res.stdout
+    help_text = " ".join(res.stdout.replace("│", " ").split())
+    for demo in ("demo:wskp", "demo:wskp-small", "demo:nbg", "demo:afn", "demo:affinity"):
+        assert demo in help_text, demo  # --model names every shipped demo
 
 
 def test_passthrough_outputs_json_and_previews(tmp_path):
