@@ -60,7 +60,6 @@ HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "smape": False, "relmse": False}
 # small bright lights smeared into dark neighbours (benchmarks/README.md, "Small bright lights").
 # Listed exactly: a new one fails, and so does one that is gone (then delete it here).
 KNOWN_WORSE = {
-    ("affinity", 0, "relmse"),
     ("crossreg", 2, "relmse"),
 }
 # families whose demo still smears the committed emitter strip (test_small_bright_lights_...)
