@@ -94,8 +94,8 @@ SCRIPT_DENOISER = PATCH + textwrap.dedent(
     from rtdenoise.runtime.static_check import fill_optional_attributes
     so = ort.SessionOptions()
     fast_bridge.register_fast_kernels(so, BRIDGE)
-    # onnxruntime-extensions needs every declared attribute on the node: demo:wskp predates
-    # TemporalAccumulation's per_tap, so a host on that bridge writes it out (Denoiser does)
+    # onnxruntime-extensions needs every declared attribute on the node: a model that predates
+    # TemporalAccumulation's per_tap (demo:wskp-small) needs it written out (Denoiser does)
     data = open(clean.source, "rb").read()
     sess = ort.InferenceSession(fill_optional_attributes(data) or data, so)
     feeds = {k: v[None] for k, v in frames[0].items()}

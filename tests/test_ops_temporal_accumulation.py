@@ -318,12 +318,12 @@ def test_a_node_without_per_tap_runs_bilinear_on_every_path() -> None:
 
 
 def test_shipped_demo_runs_on_the_extensions_bridge_with_per_tap_written_out() -> None:
-    """demo:wskp was exported before per_tap: its TemporalAccumulation node gets per_tap=0
+    """demo:wskp-small was exported before per_tap: its TemporalAccumulation node gets per_tap=0
     written out for onnxruntime-extensions, every other byte of the model kept."""
     from rtdenoise.runtime.session import resolve_model
     from rtdenoise.runtime.static_check import fill_optional_attributes
 
-    data = resolve_model("demo:wskp").read_bytes()
+    data = resolve_model("demo:wskp-small").read_bytes()
     old = onnx.load_from_string(data)
     nodes = [n for n in old.graph.node if n.op_type == OP]
     assert nodes and all(not n.attribute for n in nodes)
@@ -337,7 +337,7 @@ def test_shipped_demo_runs_on_the_extensions_bridge_with_per_tap_written_out() -
     from rtdenoise.runtime import Denoiser
     from rtdenoise.runtime.sequences.synthetic import synthetic_frames
 
-    den = Denoiser("demo:wskp", fast_kernels="extensions")
+    den = Denoiser("demo:wskp-small", fast_kernels="extensions")
     assert den.bridge == "extensions"
     frames = synthetic_frames(den.required_buffers, 2, 16, 16)
     assert all(np.isfinite(den.process(f)).all() for f in frames)
