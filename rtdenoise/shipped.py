@@ -29,10 +29,8 @@ def demo_model(family: str, suffix: str) -> Path:
     """Path of the shipped demo model `demo:<family>` (suffix '.pt' or '.onnx')."""
     path = MODELS_DIR / f"{family}{suffix}"
     if not path.is_file():
-        available = (
-            sorted({p.stem for p in MODELS_DIR.glob("*" + suffix)}) if MODELS_DIR.is_dir() else []
-        )
+        available = ", ".join(demo_names()) or "none"
         raise FileNotFoundError(
-            f"no shipped demo model 'demo:{family}' ({path.name}); available: {available or 'none'}"
+            f"no shipped demo model 'demo:{family}' ({path.name}); available: {available}"
         )
     return path

@@ -19,12 +19,12 @@ from rtdenoise.runtime.sequences.frames import (
 )
 from rtdenoise.runtime.sequences.metrics import SequenceMetrics
 from rtdenoise.runtime.sequences.samples import sample_features_of, samples_from_buffers
-from rtdenoise.shipped import MODELS_DIR, sample_sequences
+from rtdenoise.shipped import MODELS_DIR, demo_names, sample_sequences
 
 # demo (the file's stem: a family, or `<family>-small` for a family's faster second model) ->
 # minimum PSNR gain over the noisy input, dB
 MIN_GAIN_DB = dict.fromkeys(("afn", "wskp", "wskp-small", "nbg", "crossreg", "affinity"), 6.0)
-FAMILIES = sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) if MODELS_DIR.is_dir() else []
+FAMILIES = [spec.removeprefix("demo:") for spec in demo_names()]  # the files' stems
 
 
 def load_sequence(folder):
