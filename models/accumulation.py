@@ -20,7 +20,8 @@ from .features import frame_inputs
 from .ops.temporal_accumulation import temporal_accumulation
 from .temporal import TemporalConfig
 
-REPROJECTIONS = ("bilinear", "per_tap")  # AccumulatingConfig.reprojection
+# AccumulatingConfig.reprojection -> the op's per_tap attribute (models.temporal)
+REPROJECTIONS = {"bilinear": 0, "per_tap": 1, "per_tap_hdr": 2}
 ACCUMULATION_INPUTS = ("color", "albedo", "normal", "depth", "motion")
 ACCUMULATION_STATE = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))
 ACCUMULATION_NOTE = (
@@ -40,8 +41,10 @@ class AccumulatingConfig(FamilyConfig):
     min_alpha: float = 0.2
     max_history: float = 64.0
     # TA's reprojection (models.temporal): "bilinear" tests the warped geometry once per
-    # pixel (every shipped demo, and a checkpoint saved before this field); "per_tap" tests
-    # each bilinear tap and renormalises over the accepted ones (SVGF, BMFR).
+    # pixel (a checkpoint saved before this field); "per_tap" tests each bilinear tap and
+    # renormalises over the accepted ones (SVGF, BMFR); "per_tap_hdr" also weighs the accepted
+    # taps by 1 / (1 + brightness) (Karis14) so a small bright light does not bleed into its
+    # dark neighbours through the history.
     reprojection: str = "bilinear"
 
     def temporal(self) -> TemporalConfig:
@@ -50,7 +53,7 @@ class AccumulatingConfig(FamilyConfig):
             normal_threshold=self.normal_threshold,
             min_alpha=self.min_alpha,
             max_history=self.max_history,
-            per_tap=int(self.reprojection == "per_tap"),
+            per_tap=REPROJECTIONS[self.reprojection],
         )
 
     def validate(self) -> None:

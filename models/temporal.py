@@ -18,19 +18,28 @@ with weight a = max(a_min, 1 / (history + 1)) so that the first frames average u
 later frames converge to an exponential moving average with weight a_min (0.2 = Meng20's
 history weight 0.8).
 
-Two reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
-- 0, bilinear (`temporal_step`'s default, every shipped model): the whole previous state
-  (accumulation, depth, normal) is warped bilinearly first and the *interpolated* depth and
-  normal are tested, once per pixel. A deviation from SVGF and BMFR: at a silhouette the
-  interpolated depth of a foreground pixel mixes background taps in (or rejects the pixel);
+Three reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
+- 0, bilinear (`temporal_step`'s default; the models exported before per_tap): the whole
+  previous state (accumulation, depth, normal) is warped bilinearly first and the
+  *interpolated* depth and normal are tested, once per pixel. A deviation from SVGF and BMFR:
+  at a silhouette the interpolated depth of a foreground pixel mixes background taps in (or
+  rejects the pixel);
 - 1, per tap (`per_tap_history`, SVGF: Schied17 s.4.1, BMFR): each of the four bilinear taps
   is tested on its own (inside the previous frame, the same relative-depth and normal-dot
   tests against the current pixel) and the bilinear weights are renormalised over the
   accepted taps; the history is dropped where they weigh less than 0.01 (SVGF's cut, so
   where no tap passes). Tap order, weights and the inside test follow crossreg's
   `models.reprojection.svgf_reproject`; the tests are TA's own (no fwidth, no 3 x 3 fallback,
-  no erosion). docs/families/afn.md, wskp.md and nbg.md: the demos use bilinear until
-  retrained.
+  no erosion). docs/families/afn.md, wskp.md and nbg.md say which demo uses which;
+- 2, per tap HDR-weighted (`per_tap_history(..., hdr=True)`; Karis14, "High quality temporal
+  supersampling": TAA's resolve weights each sample by 1 / (1 + luma)): the taps and tests of
+  1, each accepted tap's weight divided by 1 + its brightness (the mean of its C accumulated
+  channels, at least 0) in the average, while the 0.01 cut still reads the unweighted
+  weights. A bright tap next to a dark one (a small light on a dark wall) otherwise bleeds
+  into the dark pixel at every sub-pixel warp and the bleed accumulates frame by frame:
+  demodulated history at the committed sequence's strip, dark neighbours 7-19 against a
+  reference under 0.1 over frames 1-7 with per_tap 1, 0.3-3.8 with 2
+  (benchmarks/README.md, "History that does not bleed").
 """
 
 from __future__ import annotations
@@ -51,7 +60,8 @@ class TemporalConfig:
     normal_threshold: float = 0.9  # valid if dot(n_prev, n) > normal_threshold
     min_alpha: float = 0.2  # a_min: weight of the current frame in the moving average
     max_history: float = 64.0  # history length is clamped (keeps the state bounded)
-    per_tap: int = 0  # 0: test the bilinearly warped geometry; 1: test each tap (SVGF)
+    per_tap: int = 0  # 0: test the bilinearly warped geometry; 1: test each tap (SVGF); 2: 1,
+    # the taps HDR-weighted (Karis14)
 
 
 def in_bounds(motion: torch.Tensor) -> torch.Tensor:
@@ -121,6 +131,15 @@ def accumulate(
     return acc, new_len, alpha
 
 
+def tap_brightness(values: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W): max(mean of the C channels of `values` (N, C, H, W), 0), summed in
+    channel order (the fast kernels sum the same way, to the bit)."""
+    total = values[:, :1]
+    for c in range(1, values.shape[1]):
+        total = total + values[:, c : c + 1]
+    return torch.clamp(total / values.shape[1], min=0.0)
+
+
 def per_tap_history(
     motion: torch.Tensor,
     depth: torch.Tensor,
@@ -129,13 +148,15 @@ def per_tap_history(
     geometry_state: torch.Tensor,
     reset: torch.Tensor,
     config: TemporalConfig = TemporalConfig(),
+    hdr: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """SVGF's per-tap reprojection of `ta_state` (N, C + 1, H, W): (warped ta_state, valid
     (N, 1, H, W) in {0, 1}). Each bilinear tap around current + motion passes if it lies in
     the previous frame and its depth and normal agree with the current pixel's (the tests of
     `history_validity`); the accepted taps' bilinear weights are renormalised; valid where
     they sum to at least 0.01 and reset is 0. A rejected tap's value is selected away, never
-    multiplied by 0; where invalid the warped state is 0."""
+    multiplied by 0; where invalid the warped state is 0. hdr: the accepted taps are averaged
+    with weights w / (1 + brightness) (per_tap 2, module docstring), the cut on the plain w."""
     n, c1, h, w = ta_state.shape
     flat = torch.cat((ta_state, geometry_state), dim=1).flatten(2)
     xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
@@ -145,7 +166,8 @@ def per_tap_history(
     ax, ay = (px - x0).unsqueeze(1), (py - y0).unsqueeze(1)
     ex, ey = 1.0 - ax, 1.0 - ay
     acc = torch.zeros_like(ta_state)
-    total = torch.zeros_like(depth)
+    total = torch.zeros_like(depth)  # the accepted taps' bilinear weight: the 0.01 cut
+    weighed = torch.zeros_like(depth)  # their averaging weight (= total unless hdr)
     for ox, oy, weight in ((0, 0, ex * ey), (1, 0, ax * ey), (0, 1, ex * ay), (1, 1, ax * ay)):
         fx, fy = x0 + ox, y0 + oy
         g = gather_pixels(flat, fx.long(), fy.long(), w)
@@ -153,10 +175,12 @@ def per_tap_history(
         prev_normal, prev_depth = g[:, c1 : c1 + 3], g[:, c1 + 3 : c1 + 4]
         ok = inside & geometry_agrees(depth, normal, prev_depth, prev_normal, config)
         weight = torch.where(ok, weight, torch.zeros_like(weight))
-        acc = acc + weight * torch.where(ok, g[:, :c1], torch.zeros_like(g[:, :c1]))
+        average_weight = weight / (1.0 + tap_brightness(g[:, : c1 - 1])) if hdr else weight
+        acc = acc + average_weight * torch.where(ok, g[:, :c1], torch.zeros_like(g[:, :c1]))
         total = total + weight
+        weighed = weighed + average_weight
     accepted = total >= 0.01
-    warped = acc / torch.where(accepted, total, torch.ones_like(total))
+    warped = acc / torch.where(accepted, weighed, torch.ones_like(weighed))
     valid = accepted.to(depth.dtype) * (1.0 - reset)  # reset = 1 ignores the history
     return torch.where(valid > 0.5, warped, torch.zeros_like(warped)), valid
 
@@ -179,12 +203,13 @@ def temporal_step(
     geometry_state: (N, 4, H, W) previous normal (3) and depth (1).
     Returns (accumulated (N, C, H, W), blend weight a (N, 1, H, W), next ta_state,
     next geometry_state). config.per_tap (a Python int) picks the reprojection (module
-    docstring): 0 warps the whole state and tests it once per pixel, 1 tests each tap.
+    docstring): 0 warps the whole state and tests it once per pixel, 1 tests each tap, 2 tests
+    each tap and weighs the accepted ones by brightness.
     """
     c = current.shape[1]
     if config.per_tap:
         warped, valid = per_tap_history(
-            motion, depth, normal, ta_state, geometry_state, reset, config
+            motion, depth, normal, ta_state, geometry_state, reset, config, config.per_tap == 2
         )
     else:
         warped = reproject(torch.cat((ta_state, geometry_state), dim=1), motion)

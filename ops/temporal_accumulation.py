@@ -3,8 +3,8 @@
 Attribute per_tap selects how the previous state is reprojected and tested (optional on a node:
 an omitted one is 0, so models exported before it existed run as before).
 
-per_tap = 0 (bilinear; every shipped model): the whole state is warped, then the
-*interpolated* previous depth and normal are tested once per pixel:
+per_tap = 0 (bilinear; the models exported before the attribute): the whole state is warped,
+then the *interpolated* previous depth and normal are tested once per pixel:
 
     warped = Reproject([ta_state, geometry_state], motion)      (rtdenoise.ops.reproject)
     history, history_len, prev_normal, prev_depth = the channels of warped
@@ -25,7 +25,20 @@ weights are renormalised over the accepted taps:
 
 (no separate in-bounds test: a position within a pixel of the border keeps its inside taps;
 the taps' values are never interpolated across a rejected tap, so a silhouette's background
-taps stay out of a foreground pixel's history). Then, either way:
+taps stay out of a foreground pixel's history).
+
+per_tap = 2 (per tap, HDR-weighted; Karis14's weighting of TAA's resolve): the taps and tests
+of per_tap = 1, and each accepted tap's weight in the average is divided by 1 + its
+brightness, so that a bright tap (a small light, a highlight) does not bleed into a dark
+neighbour through the bilinear blend frame after frame:
+
+    l_t = max((ta_state[t][0] + ... + ta_state[t][C - 1]) / C, 0)    (summed in channel order)
+    v_t = w_t / (1 + l_t);   [history, history_len] = sum_{ok_t} v_t ta_state[t] / sum_{ok_t} v_t
+    valid = total >= 0.01 as for per_tap = 1 (the unweighted w_t: the same pixels keep history)
+
+The weighting reads the accumulated values in the units they come in (demodulated radiance
+for the accumulating families, where 1 is a white surface under unit light); in flat regions
+it is the bilinear average to within the noise. Then, for every per_tap:
 
     n = history_len where valid else 0;   h = history where valid else 0
     alpha = max(1 / (n + 1), min_alpha)               (Lee24 III-A after Meng20, Fan21, BMFR)
@@ -48,11 +61,12 @@ from .spec import Arg, OpSpec, example_geometry, same_nhw
 
 IMAGES = ("current", "motion", "depth", "normal", "ta_state", "geometry_state")
 SCALARS = ("reset", "depth_tolerance", "normal_threshold", "min_alpha", "max_history")
+PER_TAP = (0, 1, 2)  # bilinear, per tap, per tap HDR-weighted
 
 
 def _check(shapes, attrs) -> None:
-    if attrs["per_tap"] not in (0, 1):
-        raise ValueError(f"TemporalAccumulation: per_tap is {attrs['per_tap']}; expected 0 or 1")
+    if attrs["per_tap"] not in PER_TAP:
+        raise ValueError(f"TemporalAccumulation: per_tap is {attrs['per_tap']}; expected 0, 1 or 2")
     same_nhw("TemporalAccumulation", shapes[: len(IMAGES)], IMAGES)
     c = shapes[0][1]
     expected = {"motion": 2, "depth": 1, "normal": 3, "ta_state": c + 1, "geometry_state": 4}
@@ -101,12 +115,13 @@ SPEC = OpSpec(
     doc="accumulated = a current + (1 - a) history (a = max(1 / (n + 1), min_alpha), n the "
     "history length) where the history Reproject-ed by motion is in bounds and agrees in depth "
     "and normal (per_tap=1: each bilinear tap tested, weights renormalised over the accepted "
-    "ones, SVGF), else current; outputs accumulated, a, next TA state, next geometry",
+    "ones, SVGF; per_tap=2: the taps' weights divided by 1 + their brightness, Karis14), "
+    "else current; outputs accumulated, a, next TA state, next geometry",
     inputs=(*(Arg(name) for name in IMAGES), *(Arg(name, 0) for name in SCALARS)),
     outputs=(Arg("accumulated"), Arg("blend"), Arg("next_ta"), Arg("next_geometry")),
     attrs=("per_tap",),
     default_attrs={"per_tap": 0},
-    example_attrs=({"per_tap": 0}, {"per_tap": 1}),
+    example_attrs=({"per_tap": 0}, {"per_tap": 1}, {"per_tap": 2}),
     optional_attrs={"per_tap": 0},  # models exported before per_tap existed
     output_shapes=_output_shapes,
     check=_check,

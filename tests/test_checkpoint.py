@@ -150,5 +150,10 @@ def test_reprojection_round_trips_and_bad_values_are_refused(tmp_path):
     assert model.cfg.temporal().per_tap == 1
     loaded, _ = load_checkpoint(save_checkpoint(tmp_path / "m.pt", model, {}))
     assert loaded.cfg.reprojection == "per_tap" and loaded.config() == model.config()
-    with pytest.raises(ValueError, match="reprojection must be one of 'bilinear', 'per_tap'"):
+    hdr = build_model("nbg", {"reprojection": "per_tap_hdr"})
+    assert hdr.cfg.temporal().per_tap == 2
+    loaded, _ = load_checkpoint(save_checkpoint(tmp_path / "hdr.pt", hdr, {}))
+    assert loaded.cfg.temporal().per_tap == 2
+    match = "reprojection must be one of 'bilinear', 'per_tap', 'per_tap_hdr'"
+    with pytest.raises(ValueError, match=match):
         build_model("wskp", {"reprojection": "nearest"})

@@ -131,31 +131,43 @@ def test_write_atomic_leaves_nothing_on_failure(tmp_path, monkeypatch):
     assert list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("family", ["wskp", "afn"])
-def test_per_tap_reprojection_exports_and_matches_ort_over_eight_frames(family):
-    """An accumulating family with reprojection="per_tap" (small random-init weights) exports
-    TemporalAccumulation with per_tap=1 and ORT, fast kernels and portable bodies, follows
-    PyTorch over the committed 64 x 64 sequence (fractional motion, silhouettes) with state
-    fed back; the same weights with the bilinear scheme give another image."""
+@pytest.mark.parametrize(
+    "family,reprojection,other",
+    [
+        ("wskp", "per_tap", "bilinear"),
+        ("afn", "per_tap", "bilinear"),
+        ("afn", "per_tap_hdr", "per_tap"),
+        ("nbg", "per_tap_hdr", "per_tap"),
+    ],
+)
+def test_per_tap_reprojection_exports_and_matches_ort_over_eight_frames(
+    family, reprojection, other
+):
+    """An accumulating family with reprojection="per_tap" or "per_tap_hdr" (small random-init
+    weights) exports TemporalAccumulation with per_tap=1 or 2 and ORT, fast kernels and
+    portable bodies, follows PyTorch over the committed 64 x 64 sequence (fractional motion,
+    silhouettes, a small bright light) with state fed back; the same weights with the `other`
+    scheme give another image."""
     from rtdenoise.models.data import load_sequence
     from rtdenoise.models.registry import build_model, family_class
     from rtdenoise.shipped import sample_sequences
 
-    config = {**family_class(family).example_config, "reprojection": "per_tap"}
+    config = {**family_class(family).example_config, "reprojection": reprojection}
     torch.manual_seed(0)
     model = build_model(family, config).eval().requires_grad_(False)
-    assert model.config()["reprojection"] == "per_tap"
+    assert model.config()["reprojection"] == reprojection
     proto = export_model(model)
     ta = [n for n in proto.graph.node if n.op_type == "TemporalAccumulation"]
-    assert [{a.name: a.i for a in n.attribute} for n in ta] == [{"per_tap": 1}]
+    per_tap = {"per_tap": 1, "per_tap_hdr": 2}[reprojection]
+    assert [{a.name: a.i for a in n.attribute} for n in ta] == [{"per_tap": per_tap}]
     seq = load_sequence(sample_sequences()[0], model.inputs)
     frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
     assert len(frames) == 8 and frames[0]["color"].shape[1:] == (64, 64)
     report = validate(model, proto.SerializeToString(), frames, tolerance=1e-4)
     assert report.passed, report.errors
     assert all(len(v) == 8 for v in report.errors.values())
-    bilinear = build_model(family, {**config, "reprojection": "bilinear"}).eval()
-    bilinear.load_state_dict(model.state_dict())
-    a, b = torch_outputs(model, frames), torch_outputs(bilinear, frames)
+    second = build_model(family, {**config, "reprojection": other}).eval()
+    second.load_state_dict(model.state_dict())
+    a, b = torch_outputs(model, frames), torch_outputs(second, frames)
     assert np.array_equal(a[0], b[0])  # frame 0: no history either way
     assert max(float(np.abs(x - y).max()) for x, y in zip(a[1:], b[1:], strict=True)) > 1e-3

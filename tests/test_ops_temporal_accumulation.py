@@ -1,8 +1,10 @@
 """TemporalAccumulation: every form gives all four outputs of the torch form (models.temporal),
-the fast kernel to the bit, with either reprojection (per_tap 0 and 1); per_tap=1 in every
-form matches an independent numpy spelling of SVGF's per-tap test (Schied17 s.4.1) on a
-disocclusion edge, all taps rejected, taps off-screen and reset; a node without per_tap (a
-model exported before it) runs the bilinear scheme on every path."""
+the fast kernel to the bit, with every reprojection (per_tap 0, 1 and 2); per_tap=1 and 2 in
+every form match an independent numpy spelling of SVGF's per-tap test (Schied17 s.4.1; 2 with
+Karis14's 1 / (1 + brightness) weights) on a disocclusion edge, all taps rejected, taps
+off-screen and reset; per_tap=2 keeps a bright line out of its dark neighbours and equals 1
+where the taps agree; a node without per_tap (a model exported before it) runs the bilinear
+scheme on every path."""
 
 from __future__ import annotations
 
@@ -28,7 +30,7 @@ def _inputs(shape: tuple[int, int, int, int], seed: int, reset: float = 0.0) -> 
 
 @pytest.mark.parametrize("shape", [(1, 3, 13, 17), (2, 1, 8, 6), (1, 3, 32, 48)])
 @pytest.mark.parametrize("reset", [0.0, 1.0])
-@pytest.mark.parametrize("per_tap", [0, 1])
+@pytest.mark.parametrize("per_tap", [0, 1, 2])
 def test_every_form_gives_every_output(shape, reset, per_tap) -> None:
     inputs = _inputs(shape, sum(shape), reset)
     with torch.no_grad():
@@ -55,7 +57,7 @@ def test_every_form_gives_every_output(shape, reset, per_tap) -> None:
                 np.testing.assert_array_equal(got, want, err_msg=form)
 
 
-@pytest.mark.parametrize("per_tap", [0, 1])
+@pytest.mark.parametrize("per_tap", [0, 1, 2])
 def test_nonfinite_history_is_dropped_where_invalid(per_tap) -> None:
     """An invalid history is selected away, never multiplied by 0: a NaN history leaves the
     pixels that reject it finite (where it is valid it is used, as in the torch form; the
@@ -77,7 +79,9 @@ def test_nonfinite_history_is_dropped_where_invalid(per_tap) -> None:
 # ------------------------------------------------- per_tap = 1 against an independent spelling
 
 
-def svgf_per_tap_numpy(inputs: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+def svgf_per_tap_numpy(
+    inputs: list[np.ndarray], hdr: bool = False
+) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     """SVGF's reprojection (Schied17 s.4.1) with TemporalAccumulation's tests, written from the
     description, pixel by pixel in float64: the four pixels around the previous position
     p = (x + mx, y + my) are the bilinear taps; a tap counts if it lies in the previous frame,
@@ -85,8 +89,10 @@ def svgf_per_tap_numpy(inputs: list[np.ndarray]) -> tuple[list[np.ndarray], np.n
     with the current normal exceeds normal_threshold; the history (colour and length) is the
     bilinear average over the counted taps, their weights renormalised, and is dropped where
     the counted taps weigh under 0.01 (no tap counts, in particular) or reset is 1. Then
-    alpha = max(1 / (n + 1), min_alpha). Returns the four outputs, the number of counted taps
-    per pixel among those of nonzero weight (N, H, W) and where the history was kept."""
+    alpha = max(1 / (n + 1), min_alpha). hdr (per_tap 2, Karis14): the average weighs each
+    counted tap by weight / (1 + max(mean of its C history colours, 0)); the 0.01 cut keeps
+    the plain weights. Returns the four outputs, the number of counted taps per pixel among
+    those of nonzero weight (N, H, W) and where the history was kept."""
     current, motion, depth, normal, ta, geo = (x.astype(np.float64) for x in inputs[:6])
     reset, tol, thr, min_alpha, max_history = (float(x) for x in inputs[6:])
     n_img, c, h, w = current.shape
@@ -102,7 +108,7 @@ def svgf_per_tap_numpy(inputs: list[np.ndarray]) -> tuple[list[np.ndarray], np.n
                 x0, y0 = int(np.floor(px)), int(np.floor(py))
                 fx, fy = px - x0, py - y0
                 d, nrm = depth[n, 0, y, x], normal[n, :, y, x]
-                total, history = 0.0, np.zeros(c + 1)
+                total, weighed, history = 0.0, 0.0, np.zeros(c + 1)
                 for tx, ty, weight in (
                     (x0, y0, (1 - fx) * (1 - fy)),
                     (x0 + 1, y0, fx * (1 - fy)),
@@ -115,12 +121,15 @@ def svgf_per_tap_numpy(inputs: list[np.ndarray]) -> tuple[list[np.ndarray], np.n
                         continue
                     if not np.dot(geo[n, :3, ty, tx], nrm) > thr:
                         continue
-                    total += weight
-                    history += weight * ta[n, :, ty, tx]
                     counted[n, y, x] += weight > 0
+                    total += weight
+                    if hdr:
+                        weight /= 1.0 + max(ta[n, :c, ty, tx].mean(), 0.0)
+                    weighed += weight
+                    history += weight * ta[n, :, ty, tx]
                 kept[n, y, x] = reset == 0.0 and total >= 0.01
                 if kept[n, y, x]:
-                    history /= total
+                    history /= weighed
                 else:
                     history[:] = 0.0
                 alpha = max(1.0 / (history[c] + 1.0), min_alpha)
@@ -226,10 +235,11 @@ PER_TAP_CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(PER_TAP_CASES))
-def test_per_tap_every_form_matches_an_independent_svgf_spelling(case) -> None:
+@pytest.mark.parametrize("per_tap", [1, 2])
+def test_per_tap_every_form_matches_an_independent_svgf_spelling(case, per_tap) -> None:
     inputs = PER_TAP_CASES[case]()
-    expected, counted, kept = svgf_per_tap_numpy(inputs)
-    forms = _every_form(inputs, per_tap=1)
+    expected, counted, kept = svgf_per_tap_numpy(inputs, hdr=per_tap == 2)
+    forms = _every_form(inputs, per_tap=per_tap)
     assert "portable" in forms and "native" in forms and "numba" in forms
     for form, outs in forms.items():
         assert len(outs) == 4, form
@@ -267,6 +277,51 @@ def test_per_tap_differs_from_bilinear_where_some_taps_fail() -> None:
         differs = np.abs(a - b).max(axis=0) > 1e-3
         assert differs[partial].all(), form
         np.testing.assert_array_equal(a[:, counted[0] == 4], b[:, counted[0] == 4], err_msg=form)
+
+
+def _bright_line(motion: float) -> list[np.ndarray]:
+    """The flat frame of `_frame` (32 x 32) with a history of 0.02 everywhere except 50 on
+    column 12 (a small light on a dark wall, demodulated) and a constant horizontal motion."""
+    inputs = _frame(32, 32, motion=(motion, 0.0))
+    inputs[4] = inputs[4].copy()
+    inputs[4][:, :3] = 0.02
+    inputs[4][:, :3, :, 12] = 50.0
+    return inputs
+
+
+@pytest.mark.parametrize("motion", [0.25, 0.5, -0.3])
+def test_per_tap_hdr_keeps_a_bright_line_out_of_its_dark_neighbours(motion) -> None:
+    """A sub-pixel warp of a one-pixel line: per_tap=1 moves a share of the line's 50 into the
+    pixel beside it (its bilinear weight: 12.5 to 25); per_tap=2 weighs the bright tap down by
+    1 / 51 and keeps it under 1.1 there (Karis14), as every form does; far from the line the
+    two agree."""
+    inputs = _bright_line(motion)
+    plain, hdr = _every_form(inputs, per_tap=1), _every_form(inputs, per_tap=2)
+    neighbour = 11 if motion > 0 else 13  # the pixel whose taps reach the line
+    for form in plain:
+        history = (1 - 0.2) * 1.0  # (1 - alpha) at history length 8: alpha = max(1/9, 0.2)
+        bled = plain[form][0][0, 0, :, neighbour] - 0.2 * inputs[0][0, 0, :, neighbour]
+        np.testing.assert_allclose(bled / history, 50 * abs(motion) + 0.02 * (1 - abs(motion)),
+                                   rtol=1e-5, err_msg=form)  # fmt: skip
+        kept = hdr[form][0][0, 0, :, neighbour] - 0.2 * inputs[0][0, 0, :, neighbour]
+        assert (kept / history < 1.1).all() and (kept / history > 0.02).all(), form
+        far = np.r_[0:9, 16:31]  # columns whose taps all read 0.02
+        for got, want in zip(hdr[form], plain[form], strict=True):
+            np.testing.assert_allclose(got[..., far], want[..., far], rtol=1e-6, err_msg=form)
+
+
+def test_per_tap_hdr_is_the_plain_average_where_the_taps_agree() -> None:
+    """Where the four taps hold the same history, the 1 / (1 + brightness) factors cancel:
+    per_tap=2 gives per_tap=1's outputs (to float rounding), and its cut keeps the same
+    pixels (the blend and next history lengths are the same bits)."""
+    inputs = _off_screen()
+    inputs[4] = inputs[4].copy()
+    inputs[4][:, :3] = 7.5
+    plain, hdr = _every_form(inputs, per_tap=1), _every_form(inputs, per_tap=2)
+    for form in plain:
+        for o, (got, want) in enumerate(zip(hdr[form], plain[form], strict=True)):
+            np.testing.assert_allclose(got, want, rtol=1e-6, atol=0, err_msg=f"{form} {o}")
+        np.testing.assert_array_equal(hdr[form][1], plain[form][1], err_msg=form)
 
 
 def _without_per_tap(with_function: bool):
@@ -313,8 +368,8 @@ def test_a_node_without_per_tap_runs_bilinear_on_every_path() -> None:
         assert fast_bridge.CALLS[OP] - before == (1 if b in ("native", "extensions") else 0), b
         for got, want in zip(outs, bilinear, strict=True):
             np.testing.assert_array_equal(got, want, err_msg=b or "portable")
-    with pytest.raises(ValueError, match="per_tap is 2"):
-        KERNELS[OP](*inputs, per_tap=2)
+    with pytest.raises(ValueError, match="per_tap is 3"):
+        KERNELS[OP](*inputs, per_tap=3)
 
 
 def test_shipped_demo_runs_on_the_extensions_bridge_with_per_tap_written_out() -> None:

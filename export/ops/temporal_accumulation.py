@@ -6,9 +6,11 @@ the If gives the function's outputs), so a model runs only the reprojection it a
   positions give the in-bounds test too), then the validity test, the selection and the blend
   of `models.temporal.temporal_step`, node for node in the torch form's order (names of this
   part start with `ta_`; Reproject's are its own);
-- per_tap = 1: `models.temporal.per_tap_history` (names start with `tp_`): the four taps'
-  positions and bilinear weights, per tap one GatherElements of the (N, C + 5, H*W) state and
-  its inside / depth / normal tests, the renormalisation, then the same blend.
+- per_tap = 1 or 2 (an inner If on per_tap == 2 picks one of two bodies):
+  `models.temporal.per_tap_history` (names start with `tp_`): the four taps' positions and
+  bilinear weights, per tap one GatherElements of the (N, C + 5, H*W) state and its inside /
+  depth / normal tests (2: and its HDR averaging weight), the renormalisation, then the same
+  blend.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from __future__ import annotations
 import onnx
 from onnx import TensorProto, helper
 
-from .base import attr_const, float_const, function_body
+from .base import attr_const, float_const, function_body, int_const
 from .reproject import reproject_body, sampling_grid
 
 OUTPUTS = ("accumulated", "blend", "next_ta", "next_geometry")
@@ -97,12 +99,38 @@ def _bilinear_body(opset: int) -> list[onnx.NodeProto]:
     return warp + channels + _in_bounds() + validity + _blend()
 
 
-def _per_tap_tap(t: str, fx: str, fy: str, weight: str) -> list[onnx.NodeProto]:
+def _per_tap_tap(t: str, fx: str, fy: str, weight: str, hdr: bool) -> list[onnx.NodeProto]:
     """One tap at the integer-valued float position (fx, fy) (N, H, W): its values gathered
-    (position clamped into the image), its tests, its accepted weight tp_{t}_w and weighted
-    state tp_{t}_part (models.temporal.per_tap_history's loop body)."""
+    (position clamped into the image), its tests, its accepted weight tp_{t}_w, averaging
+    weight tp_{t}_aw (hdr: divided by 1 + the tap's brightness; else tp_{t}_w itself) and
+    weighted state tp_{t}_part (models.temporal.per_tap_history's loop body)."""
     mk = helper.make_node
     p = f"tp_{t}"
+    return [
+        *_tap_tests(p, fx, fy, weight),
+        *(_hdr_weight(p, weight) if hdr else []),
+        mk("Mul", [f"{p}_aw" if hdr else f"{p}_w", f"{p}_value"], [f"{p}_part"]),
+    ]
+
+
+def _hdr_weight(p: str, weight: str) -> list[onnx.NodeProto]:
+    """{p}_aw: the accepted tap's weight / (1 + max(mean of its C accumulated channels, 0))
+    (models.temporal.tap_brightness), 0 where the tap is rejected."""
+    mk = helper.make_node
+    return [
+        mk("Slice", [f"{p}_g", "zero_i", "ta_c", "one_i"], [f"{p}_colour"]),
+        mk("ReduceSum", [f"{p}_colour", "one_i"], [f"{p}_sum"], keepdims=1),
+        mk("Div", [f"{p}_sum", "tp_c_f"], [f"{p}_mean"]),
+        mk("Max", [f"{p}_mean", "f0"], [f"{p}_bright"]),
+        mk("Add", ["f1", f"{p}_bright"], [f"{p}_scale"]),
+        mk("Div", [weight, f"{p}_scale"], [f"{p}_average"]),
+        mk("Where", [f"{p}_ok", f"{p}_average", "f0"], [f"{p}_aw"]),
+    ]
+
+
+def _tap_tests(p: str, fx: str, fy: str, weight: str) -> list[onnx.NodeProto]:
+    """The gather and tests of tap `p`: {p}_g its state, {p}_ok, {p}_w and {p}_value."""
+    mk = helper.make_node
     return [
         mk("GreaterOrEqual", [fx, "f0"], [f"{p}_gx"]),
         mk("LessOrEqual", [fx, "tp_x_max"], [f"{p}_lx"]),
@@ -137,12 +165,11 @@ def _per_tap_tap(t: str, fx: str, fy: str, weight: str) -> list[onnx.NodeProto]:
         mk("And", [f"{p}_ok2", f"{p}_normal_ok"], [f"{p}_ok"]),
         mk("Where", [f"{p}_ok", weight, "f0"], [f"{p}_w"]),
         mk("Where", [f"{p}_ok", f"{p}_state", "f0"], [f"{p}_value"]),
-        mk("Mul", [f"{p}_w", f"{p}_value"], [f"{p}_part"]),
     ]
 
 
-def _per_tap_body(opset: int) -> list[onnx.NodeProto]:
-    """per_tap = 1: models.temporal.per_tap_history, then the blend."""
+def _per_tap_body(opset: int, hdr: bool) -> list[onnx.NodeProto]:
+    """per_tap = 1 (hdr False) or 2: models.temporal.per_tap_history, then the blend."""
     mk = helper.make_node
     base = [
         mk("Concat", ["ta_state", "geometry_state"], ["previous"], axis=1),
@@ -173,13 +200,22 @@ def _per_tap_body(opset: int) -> list[onnx.NodeProto]:
         mk("Mul", ["tp_ax", "tp_ay"], ["tp_k_se"]),
         mk("Abs", ["depth"], ["tp_depth_abs"]),
         mk("Mul", ["depth_tolerance", "tp_depth_abs"], ["tp_depth_tol"]),
+        *([mk("Cast", ["ta_c"], ["tp_c_f"], to=TensorProto.FLOAT)] if hdr else []),
     ]
     taps = [
-        *_per_tap_tap("nw", "tp_x0", "tp_y0", "tp_k_nw"),
-        *_per_tap_tap("ne", "tp_x1", "tp_y0", "tp_k_ne"),
-        *_per_tap_tap("sw", "tp_x0", "tp_y1", "tp_k_sw"),
-        *_per_tap_tap("se", "tp_x1", "tp_y1", "tp_k_se"),
+        *_per_tap_tap("nw", "tp_x0", "tp_y0", "tp_k_nw", hdr),
+        *_per_tap_tap("ne", "tp_x1", "tp_y0", "tp_k_ne", hdr),
+        *_per_tap_tap("sw", "tp_x0", "tp_y1", "tp_k_sw", hdr),
+        *_per_tap_tap("se", "tp_x1", "tp_y1", "tp_k_se", hdr),
     ]
+    weighed = "tp_total"  # the averaging weight: the cut's own unless hdr
+    if hdr:
+        weighed = "tp_weighed"
+        taps += [
+            mk("Add", ["tp_nw_aw", "tp_ne_aw"], ["tp_weighed2"]),
+            mk("Add", ["tp_weighed2", "tp_sw_aw"], ["tp_weighed3"]),
+            mk("Add", ["tp_weighed3", "tp_se_aw"], ["tp_weighed"]),
+        ]
     renormalise = [
         mk("Add", ["tp_nw_part", "tp_ne_part"], ["tp_acc2"]),
         mk("Add", ["tp_acc2", "tp_sw_part"], ["tp_acc3"]),
@@ -188,7 +224,7 @@ def _per_tap_body(opset: int) -> list[onnx.NodeProto]:
         mk("Add", ["tp_total2", "tp_sw_w"], ["tp_total3"]),
         mk("Add", ["tp_total3", "tp_se_w"], ["tp_total"]),
         mk("GreaterOrEqual", ["tp_total", "tp_cut"], ["tp_accepted"]),
-        mk("Where", ["tp_accepted", "tp_total", "f1"], ["tp_denominator"]),
+        mk("Where", ["tp_accepted", weighed, "f1"], ["tp_denominator"]),
         mk("Div", ["tp_acc", "tp_denominator"], ["tp_warped"]),
         mk("Cast", ["tp_accepted"], ["tp_accepted_f"], to=TensorProto.FLOAT),
         mk("Sub", ["f1", "reset"], ["ta_keep"]),
@@ -201,28 +237,39 @@ def _per_tap_body(opset: int) -> list[onnx.NodeProto]:
     return base + taps + renormalise + _blend()
 
 
-def _branch(name: str, nodes: list[onnx.NodeProto]) -> onnx.GraphProto:
-    """A subgraph of the If: `nodes` with the function's outputs renamed `<name>_<output>`."""
-    rename = {o: f"{name}_{o}" for o in OUTPUTS}
+def _branch(name: str, nodes: list[onnx.NodeProto], outputs=OUTPUTS) -> onnx.GraphProto:
+    """A subgraph of an If: `nodes` with the `outputs` renamed `<name>_<output>`."""
+    rename = {o: f"{name}_{o}" for o in outputs}
     for node in nodes:
         node.input[:] = [rename.get(i, i) for i in node.input]
         node.output[:] = [rename.get(o, o) for o in node.output]
-    outputs = [helper.make_tensor_value_info(rename[o], TensorProto.FLOAT, None) for o in OUTPUTS]
+    outputs = [helper.make_tensor_value_info(rename[o], TensorProto.FLOAT, None) for o in outputs]
     return helper.make_graph(nodes, f"temporal_accumulation_{name}", [], outputs)
 
 
 @function_body("TemporalAccumulation")
 def temporal_accumulation_body(opset: int) -> list[onnx.NodeProto]:
-    """rtdenoise.TemporalAccumulation in standard ops: If(per_tap) per tap, else bilinear."""
+    """rtdenoise.TemporalAccumulation in standard ops: If(per_tap) [If(per_tap == 2) per tap
+    HDR-weighted, else per tap], else bilinear."""
     mk = helper.make_node
+    per_tap = list(OUTPUTS)  # the inner If's outputs: the then branch's renamed ones
+    choose_weighting = mk(
+        "If",
+        ["ta_hdr"],
+        per_tap,
+        then_branch=_branch("hdr", _per_tap_body(opset, hdr=True)),
+        else_branch=_branch("plain", _per_tap_body(opset, hdr=False)),
+    )
     return [
         attr_const("ta_per_tap", "per_tap"),
         mk("Cast", ["ta_per_tap"], ["ta_per_tap_b"], to=TensorProto.BOOL),
+        int_const("ta_two", 2),
+        mk("Equal", ["ta_per_tap", "ta_two"], ["ta_hdr"]),
         mk(
             "If",
             ["ta_per_tap_b"],
             list(OUTPUTS),
-            then_branch=_branch("per_tap", _per_tap_body(opset)),
+            then_branch=_branch("per_tap", [choose_weighting]),
             else_branch=_branch("bilinear", _bilinear_body(opset)),
         ),
     ]

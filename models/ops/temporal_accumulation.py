@@ -25,7 +25,8 @@ def temporal_accumulation_reference(
     per_tap: int,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Differentiable tensor-op form (the numeric reference): `models.temporal.temporal_step`
-    with the config's numbers as 0-d tensors and per_tap (0 bilinear, 1 per tap) as an int."""
+    with the config's numbers as 0-d tensors and per_tap (0 bilinear, 1 per tap, 2 per tap
+    HDR-weighted) as an int."""
     config = TemporalConfig(depth_tolerance, normal_threshold, min_alpha, max_history, per_tap)
     return temporal_step(current, motion, depth, normal, ta_state, geometry_state, reset, config)
 

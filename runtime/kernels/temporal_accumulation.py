@@ -9,7 +9,10 @@ channel row at a time (branch-free row loops with unsigned indices, which LLVM v
 per_tap = 1 (`_temporal_accumulation_per_tap_nb`, models.temporal.per_tap_history): one
 pixel at a time, its four taps tested and their weights and states summed in the torch form's
 tap order (nw, ne, sw, se; a rejected tap adds nothing, as its selected-away 0 does there),
-then the renormalisation, n, alpha and the blend.
+then the renormalisation, n, alpha and the blend. per_tap = 2 is the same kernel with `hdr`:
+each accepted tap's averaging weight is divided by 1 + its brightness (the channel mean of its
+accumulated values, summed in channel order, at least 0; models.temporal.tap_brightness), the
+0.01 cut still on the plain weights.
 
 The float32 arithmetic is the torch form's, step by step and without fastmath, so the forms
 agree to the bit: a history-validity decision that flipped between forms would change a
@@ -96,7 +99,7 @@ def _temporal_accumulation_nb(
 @njit(parallel=True, cache=True)  # no fastmath (see the module docstring)
 def _temporal_accumulation_per_tap_nb(
     current, motion, depth, normal, ta_state, geometry_state, keep, tolerance, threshold,
-    min_alpha, max_history, accumulated, blend, next_ta, next_geometry,
+    min_alpha, max_history, accumulated, blend, next_ta, next_geometry, hdr,
 ):  # fmt: skip
     n_img, n_ch, h, w = current.shape
     ta_planes = ta_state.reshape(n_img, n_ch + 1, h * w)
@@ -121,7 +124,8 @@ def _temporal_accumulation_per_tap_nb(
             tol = tolerance * abs(d)
             nx, ny, nz = normal[n, 0, y, x], normal[n, 1, y, x], normal[n, 2, y, x]
             acc[:] = zero
-            total = zero
+            total = zero  # the accepted taps' bilinear weight (the cut)
+            weighed = zero  # their averaging weight (= total unless hdr)
             for t in range(4):  # nw, ne, sw, se
                 right, down = t & 1, t >> 1
                 fx = x0 + one if right else x0
@@ -137,18 +141,27 @@ def _temporal_accumulation_per_tap_nb(
                 dot += geo_planes[n, 2, i] * nz
                 if not (dot > threshold):
                     continue
+                average_weight = weight
+                if hdr:
+                    bright = ta_planes[n, 0, i]
+                    for c in range(1, n_ch):
+                        bright = bright + ta_planes[n, c, i]
+                    bright = bright / np.float32(n_ch)
+                    bright = zero if bright < zero else bright  # NaN stays NaN, as torch's
+                    average_weight = weight / (one + bright)
                 for c in range(n_ch + 1):
-                    acc[c] = acc[c] + weight * ta_planes[n, c, i]
+                    acc[c] = acc[c] + average_weight * ta_planes[n, c, i]
                 total = total + weight
+                weighed = weighed + average_weight
             valid = one if total >= cut else zero
             kept = valid * keep > half
-            n_prev = acc[n_ch] / total if kept else zero
+            n_prev = acc[n_ch] / weighed if kept else zero
             n_next = n_prev + one
             a = max(one / n_next, min_alpha)
             blend[n, 0, y, x] = a
             next_ta[n, n_ch, y, x] = min(n_next, max_history)
             for c in range(n_ch):
-                kept_c = acc[c] / total if kept else zero
+                kept_c = acc[c] / weighed if kept else zero
                 value = a * current[n, c, y, x] + (one - a) * kept_c
                 accumulated[n, c, y, x] = value
                 next_ta[n, c, y, x] = value
@@ -178,11 +191,14 @@ def temporal_accumulation(
 ) -> None:
     """current (N, C, H, W), motion, depth, normal, ta_state (N, C + 1, H, W), geometry_state
     (N, 4, H, W) and five scalars -> accumulated, blend, next_ta, next_geometry; per_tap picks
-    the reprojection (0 bilinear, 1 per tap)."""
+    the reprojection (0 bilinear, 1 per tap, 2 per tap HDR-weighted)."""
     f32 = np.float32
-    kernel = _temporal_accumulation_per_tap_nb if per_tap else _temporal_accumulation_nb
-    kernel(
+    args = (
         current, motion, depth, normal, ta_state, geometry_state,
         f32(1.0) - f32(reset), f32(depth_tolerance), f32(normal_threshold), f32(min_alpha),
         f32(max_history), accumulated, blend, next_ta, next_geometry,
     )  # fmt: skip
+    if per_tap:
+        _temporal_accumulation_per_tap_nb(*args, per_tap == 2)
+    else:
+        _temporal_accumulation_nb(*args)

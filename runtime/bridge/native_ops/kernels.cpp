@@ -255,9 +255,9 @@ void reproject_run(const Tensor *in, Tensor *out, const int64_t *, int threads) 
 std::string temporal_accumulation_shapes(const Tensor *in, const int64_t *attrs, Shape *out) {
     static const char *names[] = {"current", "motion", "depth", "normal", "ta_state",
                                   "geometry_state"};
-    if (attrs[0] != 0 && attrs[0] != 1)
+    if (attrs[0] < 0 || attrs[0] > 2)
         return "TemporalAccumulation: per_tap is " + std::to_string(attrs[0]) +
-               "; expected 0 or 1";
+               "; expected 0, 1 or 2";
     std::string e = same_nhw("TemporalAccumulation", in, names, 6);
     if (!e.empty()) return e;
     const int64_t n = in[0].dims[0], c = in[0].dims[1], h = in[0].dims[2], w = in[0].dims[3];
@@ -367,8 +367,11 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
 
 /* per_tap = 1 (kernels/temporal_accumulation.py _temporal_accumulation_per_tap_nb): one pixel
  * at a time, its four taps (nw, ne, sw, se) tested and their weights and states summed in the
- * torch form's order, a rejected tap adding nothing; then the renormalisation and the blend. */
-RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, int64_t begin, int64_t end) {
+ * torch form's order, a rejected tap adding nothing; then the renormalisation and the blend.
+ * hdr (per_tap = 2): each accepted tap's averaging weight is divided by 1 + its brightness
+ * (channel mean, summed in channel order, at least 0), the 0.01 cut on the plain weights. */
+RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, bool hdr, int64_t begin,
+                                                   int64_t end) {
     const int64_t n_ch = a.n_ch, h = a.h, w = a.w, hw = h * w;
     const float zero = 0.0f, one = 1.0f, half = 0.5f, cut = 0.01f;
     const float x_max = static_cast<float>(w - 1), y_max = static_cast<float>(h - 1);
@@ -413,24 +416,35 @@ RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, int64_t begi
                 idx[t] = i;
                 ok[t] = inside & depth_ok & (dot > a.threshold);
             }
-            float total = zero;
-            for (int t = 0; t < 4; ++t) total = ok[t] ? total + wt[t] : total;
+            float total = zero, weighed = zero;  // the cut's weight; the averaging weight
+            float av[4];
+            for (int t = 0; t < 4; ++t) {
+                av[t] = wt[t];
+                if (hdr) {
+                    float bright = ta[idx[t]];
+                    for (int64_t c = 1; c < n_ch; ++c) bright = bright + ta[c * hw + idx[t]];
+                    bright = bright / static_cast<float>(n_ch);
+                    av[t] = wt[t] / (one + (bright < zero ? zero : bright));
+                }
+                total = ok[t] ? total + wt[t] : total;
+                weighed = ok[t] ? weighed + av[t] : weighed;
+            }
             float count_sum = zero;
             for (int t = 0; t < 4; ++t) {
                 const float v = ta[n_ch * hw + idx[t]];
-                count_sum = ok[t] ? count_sum + wt[t] * v : count_sum;
+                count_sum = ok[t] ? count_sum + av[t] * v : count_sum;
             }
             const float valid = total >= cut ? one : zero;
             const bool kept = valid * a.keep > half;
-            const float n_next = (kept ? count_sum / total : zero) + one;
+            const float n_next = (kept ? count_sum / weighed : zero) + one;
             const float al = max_like_numba(one / n_next, a.min_alpha);
             alpha[x] = al;
             new_len[x] = min_like_numba(n_next, a.max_history);
             for (int64_t c = 0; c < n_ch; ++c) {
                 const float *plane = ta + c * hw;
                 float sum = zero;
-                for (int t = 0; t < 4; ++t) sum = ok[t] ? sum + wt[t] * plane[idx[t]] : sum;
-                const float hist = kept ? sum / total : zero;
+                for (int t = 0; t < 4; ++t) sum = ok[t] ? sum + av[t] * plane[idx[t]] : sum;
+                const float hist = kept ? sum / weighed : zero;
                 const float value = al * a.current[((n * n_ch + c) * h + y) * w + x] + (one - al) * hist;
                 a.accumulated[((n * n_ch + c) * h + y) * w + x] = value;
                 a.next_ta[((n * (n_ch + 1) + c) * h + y) * w + x] = value;
@@ -448,9 +462,11 @@ void temporal_accumulation_run(const Tensor *in, Tensor *out, const int64_t *att
              out[0].data, out[1].data, out[2].data, out[3].data,
              in[0].dims[1], in[0].dims[2], in[0].dims[3]};
     const int64_t work = 4 * (in[4].size() + in[5].size()) + 16 * in[2].size();
+    const bool hdr = attrs[0] == 2;
     if (attrs[0])  // per_tap
-        parallel_for(in[0].dims[0] * a.h, threads, work,
-                     [&](int64_t b, int64_t e) { temporal_accumulation_per_tap_rows(a, b, e); });
+        parallel_for(in[0].dims[0] * a.h, threads, work, [&](int64_t b, int64_t e) {
+            temporal_accumulation_per_tap_rows(a, hdr, b, e);
+        });
     else
         parallel_for(in[0].dims[0] * a.h, threads, work,
                      [&](int64_t b, int64_t e) { temporal_accumulation_rows(a, b, e); });
