@@ -31,15 +31,18 @@ Three reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
   where no tap passes). Tap order, weights and the inside test follow crossreg's
   `models.reprojection.svgf_reproject`; the tests are TA's own (no fwidth, no 3 x 3 fallback,
   no erosion). docs/families/afn.md, wskp.md and nbg.md say which demo uses which;
-- 2, per tap HDR-weighted (`per_tap_history(..., hdr=True)`; Karis14, "High quality temporal
-  supersampling": TAA's resolve weights each sample by 1 / (1 + luma)): the taps and tests of
-  1, each accepted tap's weight divided by 1 + its brightness (the mean of its C accumulated
-  channels, at least 0) in the average, while the 0.01 cut still reads the unweighted
-  weights. A bright tap next to a dark one (a small light on a dark wall) otherwise bleeds
-  into the dark pixel at every sub-pixel warp and the bleed accumulates frame by frame:
-  demodulated history at the committed sequence's strip, dark neighbours 7-19 against a
-  reference under 0.1 over frames 1-7 with per_tap 1, 0.3-3.8 with 2
-  (benchmarks/README.md, "History that does not bleed").
+- 2, per tap HDR-weighted (`per_tap_history(..., hdr=True)`, after Karis14, "High quality
+  temporal supersampling", whose TAA resolve weighs each sample by 1 / (1 + luma)): the taps
+  and tests of 1; in the average each accepted tap's weight is divided by 1 + its brightness
+  above a bound, HDR_RATIO (4) x the darkest accepted tap's brightness + HDR_FLOOR (1)
+  (brightness: the mean of the tap's C accumulated channels, at least 0); the 0.01 cut still
+  reads the plain weights. Taps within the bound average as in 1 (noise, texture: no bias);
+  a bright tap beside a dark one (a small light on a dark wall), which otherwise bleeds into
+  the dark pixel at every sub-pixel warp, the bleed accumulating frame by frame, is weighed
+  down by its excess. Measured on TA alone (benchmarks/history_bleed.py): at the committed
+  sequence's strip the dark neighbours' history is 7-19 over frames 1-7 with per_tap 1 (the
+  reference under 0.1), 0.3-3.6 with 2; Karis14's plain 1 / (1 + brightness) did as well
+  there but darkened the validation sequences' history by 1-3.6 % (their 1-spp noise).
 """
 
 from __future__ import annotations
@@ -47,6 +50,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+
+from rtdenoise.ops.temporal_accumulation import HDR_FLOOR, HDR_RATIO
 
 from .ops.reproject import reproject
 from .reprojection import gather_pixels
@@ -140,6 +145,16 @@ def tap_brightness(values: torch.Tensor) -> torch.Tensor:
     return torch.clamp(total / values.shape[1], min=0.0)
 
 
+def outlier_bound(brightness: list[torch.Tensor], ok: list[torch.Tensor]) -> torch.Tensor:
+    """(N, 1, H, W): HDR_RATIO x the darkest accepted tap's brightness + HDR_FLOOR (+inf where
+    no tap is accepted), the darkest found by selects in tap order from +inf (a NaN tap is
+    never the darkest; the fast kernels fold the same way)."""
+    darkest = torch.full_like(brightness[0], float("inf"))
+    for b, accepted in zip(brightness, ok, strict=True):
+        darkest = torch.where(accepted & (b < darkest), b, darkest)
+    return HDR_RATIO * darkest + HDR_FLOOR
+
+
 def per_tap_history(
     motion: torch.Tensor,
     depth: torch.Tensor,
@@ -155,8 +170,9 @@ def per_tap_history(
     the previous frame and its depth and normal agree with the current pixel's (the tests of
     `history_validity`); the accepted taps' bilinear weights are renormalised; valid where
     they sum to at least 0.01 and reset is 0. A rejected tap's value is selected away, never
-    multiplied by 0; where invalid the warped state is 0. hdr: the accepted taps are averaged
-    with weights w / (1 + brightness) (per_tap 2, module docstring), the cut on the plain w."""
+    multiplied by 0; where invalid the warped state is 0. hdr (per_tap 2, module docstring):
+    the accepted taps are averaged with weights w / (1 + max(brightness - bound, 0)), the
+    bound from the darkest accepted tap (`outlier_bound`); the cut on the plain w."""
     n, c1, h, w = ta_state.shape
     flat = torch.cat((ta_state, geometry_state), dim=1).flatten(2)
     xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
@@ -165,17 +181,26 @@ def per_tap_history(
     x0, y0 = torch.floor(px), torch.floor(py)
     ax, ay = (px - x0).unsqueeze(1), (py - y0).unsqueeze(1)
     ex, ey = 1.0 - ax, 1.0 - ay
-    acc = torch.zeros_like(ta_state)
-    total = torch.zeros_like(depth)  # the accepted taps' bilinear weight: the 0.01 cut
-    weighed = torch.zeros_like(depth)  # their averaging weight (= total unless hdr)
+    taps = []  # (weight, gathered values, ok) in the order nw, ne, sw, se
     for ox, oy, weight in ((0, 0, ex * ey), (1, 0, ax * ey), (0, 1, ex * ay), (1, 1, ax * ay)):
         fx, fy = x0 + ox, y0 + oy
         g = gather_pixels(flat, fx.long(), fy.long(), w)
         inside = ((fx >= 0) & (fx <= w - 1) & (fy >= 0) & (fy <= h - 1)).unsqueeze(1)
         prev_normal, prev_depth = g[:, c1 : c1 + 3], g[:, c1 + 3 : c1 + 4]
         ok = inside & geometry_agrees(depth, normal, prev_depth, prev_normal, config)
-        weight = torch.where(ok, weight, torch.zeros_like(weight))
-        average_weight = weight / (1.0 + tap_brightness(g[:, : c1 - 1])) if hdr else weight
+        taps.append((torch.where(ok, weight, torch.zeros_like(weight)), g, ok))
+    if hdr:
+        brightness = [tap_brightness(g[:, : c1 - 1]) for _, g, _ in taps]
+        bound = outlier_bound(brightness, [ok for _, _, ok in taps])
+    acc = torch.zeros_like(ta_state)
+    total = torch.zeros_like(depth)  # the accepted taps' bilinear weight: the 0.01 cut
+    weighed = torch.zeros_like(depth)  # their averaging weight (= total unless hdr)
+    for t, (weight, g, ok) in enumerate(taps):
+        average_weight = weight
+        if hdr:  # weighed down by the brightness above the bound (selected: a rejected tap's
+            # value, maybe non-finite, never enters)
+            excess = torch.clamp(brightness[t] - bound, min=0.0)
+            average_weight = torch.where(ok, weight / (1.0 + excess), torch.zeros_like(weight))
         acc = acc + average_weight * torch.where(ok, g[:, :c1], torch.zeros_like(g[:, :c1]))
         total = total + weight
         weighed = weighed + average_weight

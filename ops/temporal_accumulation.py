@@ -27,18 +27,21 @@ weights are renormalised over the accepted taps:
 the taps' values are never interpolated across a rejected tap, so a silhouette's background
 taps stay out of a foreground pixel's history).
 
-per_tap = 2 (per tap, HDR-weighted; Karis14's weighting of TAA's resolve): the taps and tests
-of per_tap = 1, and each accepted tap's weight in the average is divided by 1 + its
-brightness, so that a bright tap (a small light, a highlight) does not bleed into a dark
-neighbour through the bilinear blend frame after frame:
+per_tap = 2 (per tap, HDR-weighted; after Karis14's 1 / (1 + luma) weights of TAA's resolve):
+the taps and tests of per_tap = 1, and in the average each accepted tap's weight is divided by
+1 + its brightness above a bound set by the darkest accepted tap, so that a bright tap (a small
+light, a highlight) does not bleed into a dark neighbour through the bilinear blend frame after
+frame, while taps within the bound (noise, texture) average as for per_tap = 1:
 
     l_t = max((ta_state[t][0] + ... + ta_state[t][C - 1]) / C, 0)    (summed in channel order)
-    v_t = w_t / (1 + l_t);   [history, history_len] = sum_{ok_t} v_t ta_state[t] / sum_{ok_t} v_t
-    valid = total >= 0.01 as for per_tap = 1 (the unweighted w_t: the same pixels keep history)
+    bound = HDR_RATIO min_{ok_t} l_t + HDR_FLOOR     (4 and 1; the minimum folded in tap order
+                                                      from +inf by l_t < darkest)
+    v_t = w_t / (1 + max(l_t - bound, 0))
+    [history, history_len] = sum_{ok_t} v_t ta_state[t] / sum_{ok_t} v_t
+    valid = total >= 0.01 as for per_tap = 1 (the plain w_t: the same pixels keep history)
 
-The weighting reads the accumulated values in the units they come in (demodulated radiance
-for the accumulating families, where 1 is a white surface under unit light); in flat regions
-it is the bilinear average to within the noise. Then, for every per_tap:
+The brightness is read in the units the values come in (demodulated radiance for the
+accumulating families, where 1 is a white surface under unit light). Then, for every per_tap:
 
     n = history_len where valid else 0;   h = history where valid else 0
     alpha = max(1 / (n + 1), min_alpha)               (Lee24 III-A after Meng20, Fan21, BMFR)
@@ -62,6 +65,8 @@ from .spec import Arg, OpSpec, example_geometry, same_nhw
 IMAGES = ("current", "motion", "depth", "normal", "ta_state", "geometry_state")
 SCALARS = ("reset", "depth_tolerance", "normal_threshold", "min_alpha", "max_history")
 PER_TAP = (0, 1, 2)  # bilinear, per tap, per tap HDR-weighted
+HDR_RATIO = 4.0  # per_tap 2: a tap brighter than HDR_RATIO x the darkest accepted one
+HDR_FLOOR = 1.0  # + HDR_FLOOR (a white surface under unit light) is an outlier
 
 
 def _check(shapes, attrs) -> None:

@@ -89,10 +89,11 @@ def svgf_per_tap_numpy(
     with the current normal exceeds normal_threshold; the history (colour and length) is the
     bilinear average over the counted taps, their weights renormalised, and is dropped where
     the counted taps weigh under 0.01 (no tap counts, in particular) or reset is 1. Then
-    alpha = max(1 / (n + 1), min_alpha). hdr (per_tap 2, Karis14): the average weighs each
-    counted tap by weight / (1 + max(mean of its C history colours, 0)); the 0.01 cut keeps
-    the plain weights. Returns the four outputs, the number of counted taps per pixel among
-    those of nonzero weight (N, H, W) and where the history was kept."""
+    alpha = max(1 / (n + 1), min_alpha). hdr (per_tap 2): the average weighs each counted tap
+    by weight / (1 + its brightness above 4 x the darkest counted tap's + 1), brightness the
+    mean of its C history colours (at least 0); the 0.01 cut keeps the plain weights.
+    Returns the four outputs, the number of counted taps per pixel among those of nonzero
+    weight (N, H, W) and where the history was kept."""
     current, motion, depth, normal, ta, geo = (x.astype(np.float64) for x in inputs[:6])
     reset, tol, thr, min_alpha, max_history = (float(x) for x in inputs[6:])
     n_img, c, h, w = current.shape
@@ -108,7 +109,7 @@ def svgf_per_tap_numpy(
                 x0, y0 = int(np.floor(px)), int(np.floor(py))
                 fx, fy = px - x0, py - y0
                 d, nrm = depth[n, 0, y, x], normal[n, :, y, x]
-                total, weighed, history = 0.0, 0.0, np.zeros(c + 1)
+                counted_taps = []
                 for tx, ty, weight in (
                     (x0, y0, (1 - fx) * (1 - fy)),
                     (x0 + 1, y0, fx * (1 - fy)),
@@ -122,11 +123,16 @@ def svgf_per_tap_numpy(
                     if not np.dot(geo[n, :3, ty, tx], nrm) > thr:
                         continue
                     counted[n, y, x] += weight > 0
-                    total += weight
+                    counted_taps.append((weight, ta[n, :, ty, tx]))
+                total = sum(weight for weight, _ in counted_taps)
+                bright = [max(value[:c].mean(), 0.0) for _, value in counted_taps]
+                bound = 4.0 * min(bright, default=0.0) + 1.0
+                weighed, history = 0.0, np.zeros(c + 1)
+                for (weight, value), b in zip(counted_taps, bright, strict=True):
                     if hdr:
-                        weight /= 1.0 + max(ta[n, :c, ty, tx].mean(), 0.0)
+                        weight /= 1.0 + max(b - bound, 0.0)
                     weighed += weight
-                    history += weight * ta[n, :, ty, tx]
+                    history += weight * value
                 kept[n, y, x] = reset == 0.0 and total >= 0.01
                 if kept[n, y, x]:
                     history /= weighed
@@ -293,8 +299,8 @@ def _bright_line(motion: float) -> list[np.ndarray]:
 def test_per_tap_hdr_keeps_a_bright_line_out_of_its_dark_neighbours(motion) -> None:
     """A sub-pixel warp of a one-pixel line: per_tap=1 moves a share of the line's 50 into the
     pixel beside it (its bilinear weight: 12.5 to 25); per_tap=2 weighs the bright tap down by
-    1 / 51 and keeps it under 1.1 there (Karis14), as every form does; far from the line the
-    two agree."""
+    its excess over 4 x 0.02 + 1 (1 / 49.9) and keeps it under 1.1 there, as every form does;
+    far from the line the two agree to the bit."""
     inputs = _bright_line(motion)
     plain, hdr = _every_form(inputs, per_tap=1), _every_form(inputs, per_tap=2)
     neighbour = 11 if motion > 0 else 13  # the pixel whose taps reach the line
@@ -307,21 +313,27 @@ def test_per_tap_hdr_keeps_a_bright_line_out_of_its_dark_neighbours(motion) -> N
         assert (kept / history < 1.1).all() and (kept / history > 0.02).all(), form
         far = np.r_[0:9, 16:31]  # columns whose taps all read 0.02
         for got, want in zip(hdr[form], plain[form], strict=True):
-            np.testing.assert_allclose(got[..., far], want[..., far], rtol=1e-6, err_msg=form)
+            np.testing.assert_array_equal(got[..., far], want[..., far], err_msg=form)
 
 
-def test_per_tap_hdr_is_the_plain_average_where_the_taps_agree() -> None:
-    """Where the four taps hold the same history, the 1 / (1 + brightness) factors cancel:
-    per_tap=2 gives per_tap=1's outputs (to float rounding), and its cut keeps the same
-    pixels (the blend and next history lengths are the same bits)."""
+@pytest.mark.parametrize("scale", [1.0, 3.0])
+def test_per_tap_hdr_is_the_plain_average_where_no_tap_is_an_outlier(scale) -> None:
+    """A checkerboard history (0.1 and 1, times 1 to 1.2 per pixel; lengths 1 to 80, taps
+    off-screen): no tap brighter than 4 x the darkest + 1 (at most 1.2 against 1.4), so
+    per_tap=2 weighs nothing down and gives per_tap=1's outputs to the bit; three times as
+    bright (3.6 against 2.2) the bright squares are outliers and it differs."""
     inputs = _off_screen()
+    ys, xs = np.mgrid[0:16, 0:16]
+    checker = np.where((xs + ys) % 2 == 1, 1.0, 0.1) * (1.0 + 0.2 * inputs[4][0, 0])
     inputs[4] = inputs[4].copy()
-    inputs[4][:, :3] = 7.5
+    inputs[4][:, :3] = (scale * checker).astype(np.float32)
     plain, hdr = _every_form(inputs, per_tap=1), _every_form(inputs, per_tap=2)
     for form in plain:
-        for o, (got, want) in enumerate(zip(hdr[form], plain[form], strict=True)):
-            np.testing.assert_allclose(got, want, rtol=1e-6, atol=0, err_msg=f"{form} {o}")
-        np.testing.assert_array_equal(hdr[form][1], plain[form][1], err_msg=form)
+        same = all(np.array_equal(a, b) for a, b in zip(hdr[form], plain[form], strict=True))
+        assert same == (scale == 1.0), form
+        dropped = hdr[form][1] == 1.0  # the cut: the same pixels keep their history
+        np.testing.assert_array_equal(dropped, plain[form][1] == 1.0, err_msg=form)
+        assert 0 < dropped.mean() < 1, form
 
 
 def _without_per_tap(with_function: bool):

@@ -18,6 +18,8 @@ from __future__ import annotations
 import onnx
 from onnx import TensorProto, helper
 
+from rtdenoise.ops.temporal_accumulation import HDR_FLOOR, HDR_RATIO
+
 from .base import attr_const, float_const, function_body, int_const
 from .reproject import reproject_body, sampling_grid
 
@@ -99,37 +101,62 @@ def _bilinear_body(opset: int) -> list[onnx.NodeProto]:
     return warp + channels + _in_bounds() + validity + _blend()
 
 
-def _per_tap_tap(t: str, fx: str, fy: str, weight: str, hdr: bool) -> list[onnx.NodeProto]:
-    """One tap at the integer-valued float position (fx, fy) (N, H, W): its values gathered
-    (position clamped into the image), its tests, its accepted weight tp_{t}_w, averaging
-    weight tp_{t}_aw (hdr: divided by 1 + the tap's brightness; else tp_{t}_w itself) and
-    weighted state tp_{t}_part (models.temporal.per_tap_history's loop body)."""
-    mk = helper.make_node
-    p = f"tp_{t}"
-    return [
-        *_tap_tests(p, fx, fy, weight),
-        *(_hdr_weight(p, weight) if hdr else []),
-        mk("Mul", [f"{p}_aw" if hdr else f"{p}_w", f"{p}_value"], [f"{p}_part"]),
-    ]
+TAPS = ("nw", "ne", "sw", "se")  # models.temporal.per_tap_history's order
 
 
-def _hdr_weight(p: str, weight: str) -> list[onnx.NodeProto]:
-    """{p}_aw: the accepted tap's weight / (1 + max(mean of its C accumulated channels, 0))
-    (models.temporal.tap_brightness), 0 where the tap is rejected."""
+def _tap_brightness(p: str) -> list[onnx.NodeProto]:
+    """{p}_bright: max(mean of tap p's C accumulated channels, 0) (models.temporal.
+    tap_brightness)."""
     mk = helper.make_node
     return [
         mk("Slice", [f"{p}_g", "zero_i", "ta_c", "one_i"], [f"{p}_colour"]),
         mk("ReduceSum", [f"{p}_colour", "one_i"], [f"{p}_sum"], keepdims=1),
         mk("Div", [f"{p}_sum", "tp_c_f"], [f"{p}_mean"]),
         mk("Max", [f"{p}_mean", "f0"], [f"{p}_bright"]),
-        mk("Add", ["f1", f"{p}_bright"], [f"{p}_scale"]),
+    ]
+
+
+def _outlier_bound() -> list[onnx.NodeProto]:
+    """tp_bound: HDR_RATIO x the darkest accepted tap's brightness + HDR_FLOOR, the darkest
+    folded in tap order from +inf by selects (models.temporal.outlier_bound)."""
+    mk = helper.make_node
+    nodes = [
+        float_const("tp_inf", float("inf")),
+        float_const("tp_ratio", HDR_RATIO),
+        float_const("tp_floor", HDR_FLOOR),
+    ]
+    darkest = "tp_inf"
+    for t in TAPS:
+        p = f"tp_{t}"
+        nodes += [
+            mk("Less", [f"{p}_bright", darkest], [f"{p}_darker"]),
+            mk("And", [f"{p}_ok", f"{p}_darker"], [f"{p}_darkest_so_far"]),
+            mk("Where", [f"{p}_darkest_so_far", f"{p}_bright", darkest], [f"{p}_darkest"]),
+        ]
+        darkest = f"{p}_darkest"
+    return nodes + [
+        mk("Mul", ["tp_ratio", darkest], ["tp_scaled_darkest"]),
+        mk("Add", ["tp_scaled_darkest", "tp_floor"], ["tp_bound"]),
+    ]
+
+
+def _hdr_weight(p: str, weight: str) -> list[onnx.NodeProto]:
+    """{p}_aw: the accepted tap's weight / (1 + max(brightness - tp_bound, 0)), 0 where the
+    tap is rejected."""
+    mk = helper.make_node
+    return [
+        mk("Sub", [f"{p}_bright", "tp_bound"], [f"{p}_above"]),
+        mk("Max", [f"{p}_above", "f0"], [f"{p}_excess"]),
+        mk("Add", ["f1", f"{p}_excess"], [f"{p}_scale"]),
         mk("Div", [weight, f"{p}_scale"], [f"{p}_average"]),
         mk("Where", [f"{p}_ok", f"{p}_average", "f0"], [f"{p}_aw"]),
     ]
 
 
 def _tap_tests(p: str, fx: str, fy: str, weight: str) -> list[onnx.NodeProto]:
-    """The gather and tests of tap `p`: {p}_g its state, {p}_ok, {p}_w and {p}_value."""
+    """One tap at the integer-valued float position (fx, fy) (N, H, W): its values gathered
+    (position clamped into the image) {p}_g, its tests {p}_ok, its accepted weight {p}_w and
+    state {p}_value (models.temporal.per_tap_history's first loop)."""
     mk = helper.make_node
     return [
         mk("GreaterOrEqual", [fx, "f0"], [f"{p}_gx"]),
@@ -202,13 +229,17 @@ def _per_tap_body(opset: int, hdr: bool) -> list[onnx.NodeProto]:
         mk("Mul", ["depth_tolerance", "tp_depth_abs"], ["tp_depth_tol"]),
         *([mk("Cast", ["ta_c"], ["tp_c_f"], to=TensorProto.FLOAT)] if hdr else []),
     ]
-    taps = [
-        *_per_tap_tap("nw", "tp_x0", "tp_y0", "tp_k_nw", hdr),
-        *_per_tap_tap("ne", "tp_x1", "tp_y0", "tp_k_ne", hdr),
-        *_per_tap_tap("sw", "tp_x0", "tp_y1", "tp_k_sw", hdr),
-        *_per_tap_tap("se", "tp_x1", "tp_y1", "tp_k_se", hdr),
-    ]
+    positions = {"nw": ("tp_x0", "tp_y0"), "ne": ("tp_x1", "tp_y0"),
+                 "sw": ("tp_x0", "tp_y1"), "se": ("tp_x1", "tp_y1")}  # fmt: skip
+    taps = [node for t in TAPS for node in _tap_tests(f"tp_{t}", *positions[t], f"tp_k_{t}")]
     weighed = "tp_total"  # the averaging weight: the cut's own unless hdr
+    if hdr:
+        taps += [node for t in TAPS for node in _tap_brightness(f"tp_{t}")]
+        taps += _outlier_bound()
+        taps += [node for t in TAPS for node in _hdr_weight(f"tp_{t}", f"tp_k_{t}")]
+    for t in TAPS:
+        p = f"tp_{t}"
+        taps.append(mk("Mul", [f"{p}_aw" if hdr else f"{p}_w", f"{p}_value"], [f"{p}_part"]))
     if hdr:
         weighed = "tp_weighed"
         taps += [

@@ -10,9 +10,10 @@ per_tap = 1 (`_temporal_accumulation_per_tap_nb`, models.temporal.per_tap_histor
 pixel at a time, its four taps tested and their weights and states summed in the torch form's
 tap order (nw, ne, sw, se; a rejected tap adds nothing, as its selected-away 0 does there),
 then the renormalisation, n, alpha and the blend. per_tap = 2 is the same kernel with `hdr`:
-each accepted tap's averaging weight is divided by 1 + its brightness (the channel mean of its
-accumulated values, summed in channel order, at least 0; models.temporal.tap_brightness), the
-0.01 cut still on the plain weights.
+each accepted tap's averaging weight is divided by 1 + its brightness above the bound
+HDR_RATIO x the darkest accepted tap's + HDR_FLOOR (brightness: the channel mean of its
+accumulated values, summed in channel order, at least 0; models.temporal.tap_brightness and
+outlier_bound), the 0.01 cut still on the plain weights.
 
 The float32 arithmetic is the torch form's, step by step and without fastmath, so the forms
 agree to the bit: a history-validity decision that flipped between forms would change a
@@ -23,6 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange, uintp
+
+from rtdenoise.ops.temporal_accumulation import HDR_FLOOR, HDR_RATIO
 
 from .fast_kernel import fast_kernel
 from .reproject import _gather_row, _taps
@@ -106,11 +109,16 @@ def _temporal_accumulation_per_tap_nb(
     geo_planes = geometry_state.reshape(n_img, 4, h * w)
     zero, one, half, cut = np.float32(0.0), np.float32(1.0), np.float32(0.5), np.float32(0.01)
     x_max, y_max = np.float32(w - 1), np.float32(h - 1)
+    ratio, floor = np.float32(HDR_RATIO), np.float32(HDR_FLOOR)
     for row in prange(n_img * h):
         n = row // h
         y = row - n * h
         y_f = np.float32(y)
         acc = np.empty(n_ch + 1, np.float32)
+        index = np.empty(4, np.int64)
+        weights = np.empty(4, np.float32)
+        bright = np.empty(4, np.float32)
+        bound = np.float32(0.0)
         for x in range(w):
             px = np.float32(x) + motion[n, 0, y, x]
             py = y_f + motion[n, 1, y, x]
@@ -123,9 +131,7 @@ def _temporal_accumulation_per_tap_nb(
             d = depth[n, 0, y, x]
             tol = tolerance * abs(d)
             nx, ny, nz = normal[n, 0, y, x], normal[n, 1, y, x], normal[n, 2, y, x]
-            acc[:] = zero
-            total = zero  # the accepted taps' bilinear weight (the cut)
-            weighed = zero  # their averaging weight (= total unless hdr)
+            count = 0  # the accepted taps, in tap order
             for t in range(4):  # nw, ne, sw, se
                 right, down = t & 1, t >> 1
                 fx = x0 + one if right else x0
@@ -141,14 +147,30 @@ def _temporal_accumulation_per_tap_nb(
                 dot += geo_planes[n, 2, i] * nz
                 if not (dot > threshold):
                     continue
+                index[count] = i
+                weights[count] = weight
+                count += 1
+            if hdr:  # models.temporal.outlier_bound, then each tap's weight over its excess
+                darkest = np.float32(np.inf)
+                for k in range(count):
+                    b = ta_planes[n, 0, index[k]]
+                    for c in range(1, n_ch):
+                        b = b + ta_planes[n, c, index[k]]
+                    b = b / np.float32(n_ch)
+                    b = zero if b < zero else b  # NaN stays NaN, as torch's clamp
+                    bright[k] = b
+                    darkest = b if b < darkest else darkest
+                bound = ratio * darkest + floor
+            acc[:] = zero
+            total = zero  # the accepted taps' bilinear weight (the cut)
+            weighed = zero  # their averaging weight (= total unless hdr)
+            for k in range(count):
+                i, weight = index[k], weights[k]
                 average_weight = weight
                 if hdr:
-                    bright = ta_planes[n, 0, i]
-                    for c in range(1, n_ch):
-                        bright = bright + ta_planes[n, c, i]
-                    bright = bright / np.float32(n_ch)
-                    bright = zero if bright < zero else bright  # NaN stays NaN, as torch's
-                    average_weight = weight / (one + bright)
+                    excess = bright[k] - bound
+                    excess = zero if excess < zero else excess
+                    average_weight = weight / (one + excess)
                 for c in range(n_ch + 1):
                     acc[c] = acc[c] + average_weight * ta_planes[n, c, i]
                 total = total + weight

@@ -12,6 +12,7 @@
 #include <condition_variable>
 #include <exception>
 #include <functional>
+#include <limits>
 #include <mutex>
 #include <thread>
 
@@ -369,7 +370,10 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
  * at a time, its four taps (nw, ne, sw, se) tested and their weights and states summed in the
  * torch form's order, a rejected tap adding nothing; then the renormalisation and the blend.
  * hdr (per_tap = 2): each accepted tap's averaging weight is divided by 1 + its brightness
- * (channel mean, summed in channel order, at least 0), the 0.01 cut on the plain weights. */
+ * (channel mean, summed in channel order, at least 0) above kHdrRatio x the darkest accepted
+ * tap's + kHdrFloor (ops/temporal_accumulation.py HDR_RATIO, HDR_FLOOR), the 0.01 cut on the
+ * plain weights. */
+constexpr float kHdrRatio = 4.0f, kHdrFloor = 1.0f;
 RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, bool hdr, int64_t begin,
                                                    int64_t end) {
     const int64_t n_ch = a.n_ch, h = a.h, w = a.w, hw = h * w;
@@ -416,16 +420,25 @@ RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, bool hdr, in
                 idx[t] = i;
                 ok[t] = inside & depth_ok & (dot > a.threshold);
             }
-            float total = zero, weighed = zero;  // the cut's weight; the averaging weight
-            float av[4];
-            for (int t = 0; t < 4; ++t) {
-                av[t] = wt[t];
-                if (hdr) {
-                    float bright = ta[idx[t]];
-                    for (int64_t c = 1; c < n_ch; ++c) bright = bright + ta[c * hw + idx[t]];
-                    bright = bright / static_cast<float>(n_ch);
-                    av[t] = wt[t] / (one + (bright < zero ? zero : bright));
+            float av[4] = {wt[0], wt[1], wt[2], wt[3]};  // the averaging weights
+            if (hdr) {  // models/temporal.py outlier_bound, then each tap over its excess
+                float bright[4];
+                float darkest = std::numeric_limits<float>::infinity();
+                for (int t = 0; t < 4; ++t) {
+                    float b = ta[idx[t]];
+                    for (int64_t c = 1; c < n_ch; ++c) b = b + ta[c * hw + idx[t]];
+                    b = b / static_cast<float>(n_ch);
+                    bright[t] = b < zero ? zero : b;  // NaN stays NaN, as torch's clamp
+                    darkest = ok[t] && bright[t] < darkest ? bright[t] : darkest;
                 }
+                const float bound = kHdrRatio * darkest + kHdrFloor;
+                for (int t = 0; t < 4; ++t) {
+                    const float excess = bright[t] - bound;
+                    av[t] = wt[t] / (one + (excess < zero ? zero : excess));
+                }
+            }
+            float total = zero, weighed = zero;  // the cut's weight; the averaging weight
+            for (int t = 0; t < 4; ++t) {
                 total = ok[t] ? total + wt[t] : total;
                 weighed = ok[t] ? weighed + av[t] : weighed;
             }
