@@ -55,7 +55,7 @@ from rtdenoise.shipped import demo_names
 
 # The model used when --model is not given (README, "Against Open Image Denoise"): demo:wskp,
 # Fan21 at width 32, the best of the shipped models that are worse than the noisy input nowhere
-# and keep small lights in place, at 0.76x OIDN fast's time per 720p frame.
+# and keep small lights in place, at 0.75x OIDN fast's time per 720p frame.
 DEFAULT_MODEL = "demo:wskp"
 TABLE_MAX_FRAMES = 12  # per-frame rows up to this many frames, else only the mean
 
