@@ -268,13 +268,13 @@ def _per_tap_body(opset: int, hdr: bool) -> list[onnx.NodeProto]:
     return base + taps + renormalise + _blend()
 
 
-def _branch(name: str, nodes: list[onnx.NodeProto], outputs=OUTPUTS) -> onnx.GraphProto:
-    """A subgraph of an If: `nodes` with the `outputs` renamed `<name>_<output>`."""
-    rename = {o: f"{name}_{o}" for o in outputs}
+def _branch(name: str, nodes: list[onnx.NodeProto]) -> onnx.GraphProto:
+    """A subgraph of an If: `nodes` with the function's outputs renamed `<name>_<output>`."""
+    rename = {o: f"{name}_{o}" for o in OUTPUTS}
     for node in nodes:
         node.input[:] = [rename.get(i, i) for i in node.input]
         node.output[:] = [rename.get(o, o) for o in node.output]
-    outputs = [helper.make_tensor_value_info(rename[o], TensorProto.FLOAT, None) for o in outputs]
+    outputs = [helper.make_tensor_value_info(rename[o], TensorProto.FLOAT, None) for o in OUTPUTS]
     return helper.make_graph(nodes, f"temporal_accumulation_{name}", [], outputs)
 
 
@@ -283,11 +283,10 @@ def temporal_accumulation_body(opset: int) -> list[onnx.NodeProto]:
     """rtdenoise.TemporalAccumulation in standard ops: If(per_tap) [If(per_tap == 2) per tap
     HDR-weighted, else per tap], else bilinear."""
     mk = helper.make_node
-    per_tap = list(OUTPUTS)  # the inner If's outputs: the then branch's renamed ones
-    choose_weighting = mk(
+    choose_weighting = mk(  # inside the per_tap branch, which renames its outputs
         "If",
         ["ta_hdr"],
-        per_tap,
+        list(OUTPUTS),
         then_branch=_branch("hdr", _per_tap_body(opset, hdr=True)),
         else_branch=_branch("plain", _per_tap_body(opset, hdr=False)),
     )
