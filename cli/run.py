@@ -54,8 +54,9 @@ from rtdenoise.runtime.sequences.run import (
 from rtdenoise.shipped import demo_names
 
 # The model used when --model is not given (README, "Against Open Image Denoise"): demo:wskp,
-# Fan21 at width 32, the best of the shipped models that are worse than the noisy input nowhere
-# and keep small lights in place, at 0.75x OIDN fast's time per 720p frame.
+# Fan21 at width 32, worse than the noisy input nowhere, small lights kept in place, at 0.78x
+# OIDN fast's time per 720p frame (demo:nbg passes the same checks since 2026-12-05, 0.50 dB
+# higher: the README says why it is not the default yet).
 DEFAULT_MODEL = "demo:wskp"
 TABLE_MAX_FRAMES = 12  # per-frame rows up to this many frames, else only the mean
 
