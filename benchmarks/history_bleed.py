@@ -1,8 +1,8 @@
 """How much a small light's history bleeds into its dark neighbours, per TA reprojection.
 
 Runs TemporalAccumulation alone (no network: its torch form, models.temporal) over a sequence
-with the reprojections per_tap 1 (SVGF) and 2 (per tap, Karis14's HDR weights), the colour
-demodulated by albedo + 0.01 as the accumulating families do, and reports per frame the
+with the reprojections per_tap 1 (SVGF) and 2 (per tap, outlier-bright taps weighed down), the
+colour demodulated by albedo + 0.01 as the accumulating families do, and reports per frame the
 largest remodulated accumulated value at pixels whose reference is dark (channel mean < 0.1),
 then over frames 4 on: relMSE, mean |T(out) - T(ref)| with T(x) = x / (1 + x), and the mean
 brightness of the accumulation over the reference's (the bias of the weighting).

@@ -42,9 +42,9 @@ class AccumulatingConfig(FamilyConfig):
     max_history: float = 64.0
     # TA's reprojection (models.temporal): "bilinear" tests the warped geometry once per
     # pixel (a checkpoint saved before this field); "per_tap" tests each bilinear tap and
-    # renormalises over the accepted ones (SVGF, BMFR); "per_tap_hdr" also weighs the accepted
-    # taps by 1 / (1 + brightness) (Karis14) so a small bright light does not bleed into its
-    # dark neighbours through the history.
+    # renormalises over the accepted ones (SVGF, BMFR); "per_tap_hdr" also weighs down a tap
+    # brighter than 4x the darkest accepted one + 1 by its excess (after Karis14), so a small
+    # bright light does not bleed into its dark neighbours through the history.
     reprojection: str = "bilinear"
 
     def temporal(self) -> TemporalConfig:

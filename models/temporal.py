@@ -66,7 +66,7 @@ class TemporalConfig:
     min_alpha: float = 0.2  # a_min: weight of the current frame in the moving average
     max_history: float = 64.0  # history length is clamped (keeps the state bounded)
     per_tap: int = 0  # 0: test the bilinearly warped geometry; 1: test each tap (SVGF); 2: 1,
-    # the taps HDR-weighted (Karis14)
+    # outlier-bright taps weighed down (module docstring)
 
 
 def in_bounds(motion: torch.Tensor) -> torch.Tensor:

@@ -120,8 +120,8 @@ SPEC = OpSpec(
     doc="accumulated = a current + (1 - a) history (a = max(1 / (n + 1), min_alpha), n the "
     "history length) where the history Reproject-ed by motion is in bounds and agrees in depth "
     "and normal (per_tap=1: each bilinear tap tested, weights renormalised over the accepted "
-    "ones, SVGF; per_tap=2: the taps' weights divided by 1 + their brightness, Karis14), "
-    "else current; outputs accumulated, a, next TA state, next geometry",
+    "ones, SVGF; per_tap=2: each tap's weight divided by 1 + its brightness above 4x the "
+    "darkest tap's + 1), else current; outputs accumulated, a, next TA state, next geometry",
     inputs=(*(Arg(name) for name in IMAGES), *(Arg(name, 0) for name in SCALARS)),
     outputs=(Arg("accumulated"), Arg("blend"), Arg("next_ta"), Arg("next_geometry")),
     attrs=("per_tap",),

@@ -1,10 +1,10 @@
 """TemporalAccumulation: every form gives all four outputs of the torch form (models.temporal),
 the fast kernel to the bit, with every reprojection (per_tap 0, 1 and 2); per_tap=1 and 2 in
 every form match an independent numpy spelling of SVGF's per-tap test (Schied17 s.4.1; 2 with
-Karis14's 1 / (1 + brightness) weights) on a disocclusion edge, all taps rejected, taps
-off-screen and reset; per_tap=2 keeps a bright line out of its dark neighbours and equals 1
-where the taps agree; a node without per_tap (a model exported before it) runs the bilinear
-scheme on every path."""
+a tap brighter than 4x the darkest + 1 weighed down by its excess) on a disocclusion edge, all
+taps rejected, taps off-screen and reset; per_tap=2 keeps a bright line out of its dark
+neighbours and equals per_tap=1 where no tap is an outlier; a node without per_tap (a model
+exported before it) runs the bilinear scheme on every path."""
 
 from __future__ import annotations
 
