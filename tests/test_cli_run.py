@@ -58,7 +58,7 @@ def invoke(*args):
 
 
 def test_default_model_is_the_shipped_demo_and_help():
-    assert DEFAULT_MODEL == "demo:wskp"
+    assert DEFAULT_MODEL == "demo:nbg"
     res = invoke("--help")
     assert res.exit_code == 0 and "blender" in res.stdout and "canonical" in res.stdout
     help_text = " ".join(res.stdout.replace("│", " ").split())

@@ -125,11 +125,11 @@ def test_reset_and_resolution_change_restart_history(family, sequences):
 def test_denoise_run_demo_uses_the_shipped_model(tmp_path):
     from typer.testing import CliRunner
 
-    from rtdenoise.cli.run import app
+    from rtdenoise.cli.run import DEFAULT_MODEL, app
 
     res = CliRunner().invoke(app, ["--demo", "-o", str(tmp_path)])
     assert res.exit_code == 0, res.output
-    assert "demo:wskp over 3 sequences" in res.output
+    assert f"{DEFAULT_MODEL} over 3 sequences" in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq_000", "seq_001", "seq_002"]
     assert len(list((tmp_path / "seq_000").glob("frame_*.exr"))) == 8
 

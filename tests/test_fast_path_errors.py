@@ -204,7 +204,7 @@ def make_frame_buffers() -> dict[str, np.ndarray]:
 
 def test_ctrl_c_inside_a_kernel_exits_130_with_complete_files(tmp_path, monkeypatch):
     # a numba kernel is where the patched SIGINT arrives: the numba path, not the C++ library
-    # (which demo:wskp runs on by default; its case is the next test's)
+    # (which the demos run on by default; its case is the next test's)
     monkeypatch.setenv("RTDENOISE_NATIVE_OPS", "0")
     frames = make_sequence(tmp_path / "seq", 4)
     out = tmp_path / "out"
