@@ -32,7 +32,7 @@ from rtdenoise.shipped import sample_sequences
 T, BAD, TOLERANCE_DB = 10, 3, 0.5
 # frames after the bad one: demo:afn (per_tap_hdr, 2026-12-05) gains the most from its history
 # (+2.8 dB from frame 0 to 7 on this shot), so a restarted history needs a frame more (4 frames
-# on it is 0.53 dB short, 5 frames on 0.33)
+# on it is 0.54 dB short, 5 frames on 0.33)
 RECOVERY = {"demo:afn": 5, "demo:nbg": 4, "demo:wskp": 4}
 PATHS = {"fast": True, "portable": False}
 MODELS = ("demo:afn", "demo:nbg", "demo:wskp")  # demo:nbg: the default model

@@ -63,7 +63,7 @@ KNOWN_WORSE = {
     ("crossreg", 2, "relmse"),
 }
 # families whose demo still smears the committed emitter strip (test_small_bright_lights_...)
-SMEARS_SMALL_LIGHTS = {"afn", "affinity"}
+SMEARS_SMALL_LIGHTS = {"affinity"}
 
 
 @pytest.mark.parametrize("family", FAMILIES)

@@ -59,6 +59,11 @@ Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
   convs of `fusion_width` (8) channels, ReLU, sigmoid: it sees where d_1spp and d_TA disagree
   (a moving light, a disocclusion). The figure's layer sizes are not in the text: these are
   the smallest that see a 5 x 5 neighbourhood; 1.2 k multiply-adds per pixel.
+- `padding`: how every k x k convolution sees past the frame's edge, "zeros" (default, as
+  the paper's code and the demos before 2026-12-05) or "replicate" (the edge pixel repeated).
+  With zeros a small light at the frame's edge reads as a bright pixel beside a black one, and
+  demo:afn smeared the committed emitter strip into the first two columns (7.11 where the
+  reference is 0.055; benchmarks/README.md, "afn's frame 7").
 - H and W must be multiples of `pad_multiple` = 2 ** (len(widths) - 1).
 
 Cost (FLOP = 2 x multiply-adds of the Conv layers, `benchmarks/flops.py`): the defaults take
@@ -89,6 +94,8 @@ from ..features import depth01
 from ..ops.adaptive_fusion import adaptive_fusion
 from ..ops.softmax_kernel_apply import softmax_kernel_apply
 
+PADDINGS = ("zeros", "replicate")  # AFNConfig.padding: torch Conv2d padding modes
+
 
 @dataclass(frozen=True)
 class AFNConfig(AccumulatingConfig):
@@ -106,6 +113,7 @@ class AFNConfig(AccumulatingConfig):
     full_res_decoder_kernel: int = 1  # their kernel size in the decoder block
     fusion: str = "head"  # where alpha comes from: "head" (predictor) or "network" (Fig. 2c)
     fusion_width: int = 8  # FusionNet's hidden channels
+    padding: str = "zeros"  # past the frame's edge: "zeros" or "replicate" (every k x k conv)
 
     @classmethod
     def from_dict(cls, data: dict | None) -> AFNConfig:
@@ -138,6 +146,8 @@ class AFNConfig(AccumulatingConfig):
             raise self.fail(f"fusion must be 'head' or 'network', got {self.fusion!r}")
         if self.fusion_width < 1:
             raise self.fail(f"fusion_width must be >= 1, got {self.fusion_width}")
+        if self.padding not in PADDINGS:
+            raise self.fail(f"padding must be one of {', '.join(PADDINGS)}, got {self.padding!r}")
 
 
 # The AFNConfig keys of every checkpoint saved before the full-scale options were added, and
@@ -296,6 +306,9 @@ class AFN(DenoiserModel):
         )
         self.fusion = FusionNet(7, config.fusion_width) if config.fusion == "network" else None
         self.refine = Refinement(7 + 3, config.refine_width, config.refine_layers)
+        for conv in self.modules():
+            if isinstance(conv, nn.Conv2d) and conv.padding != (0, 0):
+                conv.padding_mode = config.padding
 
     def forward(
         self,
