@@ -186,7 +186,7 @@ def test_fusion_network_sees_the_filtered_images_and_exports():
     assert report.passed and report.max_error < 1e-5, report.errors
 
 
-def test_replicate_padding_changes_the_edges_only_and_exports():
+def test_replicate_padding_gives_another_image_and_exports():
     """padding="replicate": every k x k conv repeats the frame's edge pixel instead of reading
     zeros past it (1 x 1 convs unchanged); the same weights give another image, and ORT (fast
     and portable) follows PyTorch over moving frames with state. An unknown mode is refused by
