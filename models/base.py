@@ -39,6 +39,22 @@ __all__ = [
     "register_family",
 ]
 
+PADDINGS = ("zeros", "replicate")  # the `padding` config key of afn and affinity
+
+
+def check_padding(config: FamilyConfig) -> None:
+    """`validate` helper: the config's `padding` is one of PADDINGS."""
+    if config.padding not in PADDINGS:
+        raise config.fail(f"padding must be one of {', '.join(PADDINGS)}, got {config.padding!r}")
+
+
+def pad_convs(module: nn.Module, mode: str) -> None:
+    """Every k x k Conv2d of `module` sees past the frame's edge as `mode` says: "zeros" or
+    "replicate" (the edge pixel repeated; exported as an ONNX Pad of mode edge)."""
+    for conv in module.modules():
+        if isinstance(conv, nn.Conv2d) and conv.padding != (0, 0):
+            conv.padding_mode = mode
+
 
 @dataclasses.dataclass(frozen=True)
 class FamilyConfig:

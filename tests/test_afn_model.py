@@ -184,34 +184,3 @@ def test_fusion_network_sees_the_filtered_images_and_exports():
     data = export_model(net).SerializeToString()
     report = validate(net, data, synthetic_frames(net.inputs, 3, 32, 24))
     assert report.passed and report.max_error < 1e-5, report.errors
-
-
-def test_replicate_padding_gives_another_image_and_exports():
-    """padding="replicate": every k x k conv repeats the frame's edge pixel instead of reading
-    zeros past it (1 x 1 convs unchanged); the same weights give another image, and ORT (fast
-    and portable) follows PyTorch over moving frames with state. An unknown mode is refused by
-    name."""
-    from rtdenoise.export.onnx_export import export_model
-    from rtdenoise.export.validate import synthetic_frames, validate
-
-    config = {**SMALL, "fusion": "network", "fusion_width": 6}
-    torch.manual_seed(0)
-    zeros = build_model("afn", config).eval().requires_grad_(False)
-    replicate = build_model("afn", {**config, "padding": "replicate"}).eval()
-    replicate.load_state_dict(zeros.state_dict())
-    replicate.requires_grad_(False)
-    convs = [m for m in replicate.modules() if isinstance(m, torch.nn.Conv2d)]
-    assert {m.padding_mode for m in convs if m.kernel_size != (1, 1)} == {"replicate"}
-    assert {m.padding_mode for m in convs if m.kernel_size == (1, 1)} == {"zeros"}
-    assert replicate.config()["padding"] == "replicate" and zeros.config()["padding"] == "zeros"
-    a, _ = zeros(_buffers(), zeros.initial_state(N, H, W), torch.tensor(1.0))
-    b, _ = replicate(_buffers(), replicate.initial_state(N, H, W), torch.tensor(1.0))
-    assert float((a - b).abs().max()) > 1e-4
-    report = validate(
-        replicate,
-        export_model(replicate).SerializeToString(),
-        synthetic_frames(replicate.inputs, 3, 32, 24),
-    )
-    assert report.passed and report.max_error < 1e-5, report.errors
-    with pytest.raises(ValueError, match="padding must be one of zeros, replicate"):
-        build_model("afn", {**SMALL, "padding": "reflect"})

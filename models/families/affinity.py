@@ -47,6 +47,8 @@ Choices the paper leaves open (all in `AffinityConfig`, stored in checkpoints):
   (eq. (11), eps `smape_eps` 1e-2) + temporal_weight (0.25) x SMAPE of the frame differences
   + 1e-5 x (sum_k E a_k^2 + E b^2); the bandwidths of the last forward passes are kept for
   the regulariser while training.
+- `padding`: how every 3 x 3 convolution of the U-Net sees past the frame's edge, "zeros"
+  (default, as the paper's code) or "replicate" (the edge pixel repeated), as afn's key.
 """
 
 from __future__ import annotations
@@ -70,6 +72,8 @@ from ..base import (
     FamilyConfig,
     RuntimeOption,
     StateSpec,
+    check_padding,
+    pad_convs,
     parameter_count,
     register_family,
 )
@@ -99,8 +103,10 @@ class AffinityConfig(FamilyConfig):
     smape_eps: float = 1e-2
     temporal_weight: float = 0.25  # eq. (9), unless training overrides it
     regulariser_weight: float = 1e-5  # eq. (9)
+    padding: str = "zeros"  # past the frame's edge: "zeros" or "replicate"
 
     def validate(self) -> None:
+        check_padding(self)
         try:
             features = check_features(self.sample_features)
         except ValueError as exc:
@@ -266,6 +272,7 @@ class Affinity(DenoiserModel):
             config.parameter_channels,
             config.leaky_slope,
         )
+        pad_convs(self.unet, config.padding)
         self.state_specs = (
             StateSpec("embedding", config.embed_width),  # accumulated e (eq. (3))
             StateSpec("radiance", 3),  # accumulated L (eq. (5))

@@ -89,12 +89,10 @@ from ..accumulation import (
     AccumulatingConfig,
     demodulate_and_accumulate,
 )
-from ..base import DenoiserModel, parameter_count, register_family
+from ..base import DenoiserModel, check_padding, pad_convs, parameter_count, register_family
 from ..features import depth01
 from ..ops.adaptive_fusion import adaptive_fusion
 from ..ops.softmax_kernel_apply import softmax_kernel_apply
-
-PADDINGS = ("zeros", "replicate")  # AFNConfig.padding: torch Conv2d padding modes
 
 
 @dataclass(frozen=True)
@@ -146,8 +144,7 @@ class AFNConfig(AccumulatingConfig):
             raise self.fail(f"fusion must be 'head' or 'network', got {self.fusion!r}")
         if self.fusion_width < 1:
             raise self.fail(f"fusion_width must be >= 1, got {self.fusion_width}")
-        if self.padding not in PADDINGS:
-            raise self.fail(f"padding must be one of {', '.join(PADDINGS)}, got {self.padding!r}")
+        check_padding(self)
 
 
 # The AFNConfig keys of every checkpoint saved before the full-scale options were added, and
@@ -306,9 +303,7 @@ class AFN(DenoiserModel):
         )
         self.fusion = FusionNet(7, config.fusion_width) if config.fusion == "network" else None
         self.refine = Refinement(7 + 3, config.refine_width, config.refine_layers)
-        for conv in self.modules():
-            if isinstance(conv, nn.Conv2d) and conv.padding != (0, 0):
-                conv.padding_mode = config.padding
+        pad_convs(self, config.padding)
 
     def forward(
         self,

@@ -1,0 +1,61 @@
+"""The `padding` config key of afn and affinity: how their k x k convs see past the edge."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from model_inputs import random_buffers
+
+from rtdenoise.export.onnx_export import export_model
+from rtdenoise.export.validate import synthetic_frames, validate
+from rtdenoise.models.registry import build_model, family_class
+
+CONFIGS = {
+    "afn": {"widths": [8, 12, 16], "kernel_size": 5, "refine_width": 8, "fusion": "network"},
+    "affinity": family_class("affinity").example_config,
+}
+N, H, W = 1, 32, 32
+
+
+def _conv_outputs(model: torch.nn.Module, buffers: dict) -> list[torch.Tensor]:
+    """The outputs of the model's k x k convs on one first frame, in call order."""
+    outputs: list[torch.Tensor] = []
+    convs = [
+        m for m in model.modules() if isinstance(m, torch.nn.Conv2d) and m.kernel_size != (1, 1)
+    ]
+    hooks = [c.register_forward_hook(lambda m, i, o: outputs.append(o)) for c in convs]
+    model(buffers, model.initial_state(N, H, W), torch.tensor(1.0))
+    for hook in hooks:
+        hook.remove()
+    return outputs
+
+
+@pytest.mark.parametrize("family", sorted(CONFIGS))
+def test_replicate_padding_gives_another_image_and_exports(family: str):
+    """padding="replicate": every k x k conv repeats the frame's edge pixel instead of reading
+    zeros past it (1 x 1 convs unchanged); with the same weights every k x k conv's output
+    changes at the frame's edge (the first conv's only there), and ORT (fast and portable) follows PyTorch over moving frames with state. An unknown mode is refused by
+    name."""
+    config = CONFIGS[family]
+    torch.manual_seed(0)
+    zeros = build_model(family, config).eval().requires_grad_(False)
+    replicate = build_model(family, {**config, "padding": "replicate"}).eval()
+    replicate.load_state_dict(zeros.state_dict())
+    replicate.requires_grad_(False)
+    convs = [m for m in replicate.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert {m.padding_mode for m in convs if m.kernel_size != (1, 1)} == {"replicate"}
+    assert {m.padding_mode for m in convs if m.kernel_size == (1, 1)} == {"zeros"}
+    assert replicate.config()["padding"] == "replicate" and zeros.config()["padding"] == "zeros"
+    buffers = random_buffers(0, N, H, W)
+    a, b = (_conv_outputs(m, buffers) for m in (zeros, replicate))
+    edge = [float((x - y)[..., 0].abs().max()) for x, y in zip(a, b, strict=True)]
+    inner = [float((x - y)[..., 8:-8, 8:-8].abs().max()) for x, y in zip(a[:1], b[:1], strict=True)]
+    assert min(edge) > 1e-4 and inner == [0.0]  # the first conv: only its edge changes
+    report = validate(
+        replicate,
+        export_model(replicate).SerializeToString(),
+        synthetic_frames(replicate.inputs, 3, 32, 32),
+    )
+    assert report.passed and report.max_error < 1e-5, report.errors
+    with pytest.raises(ValueError, match=f"{family} padding must be one of zeros, replicate"):
+        build_model(family, {**config, "padding": "reflect"})
