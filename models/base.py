@@ -39,7 +39,7 @@ __all__ = [
     "register_family",
 ]
 
-PADDINGS = ("zeros", "replicate")  # the `padding` config key of afn and affinity
+PADDINGS = ("zeros", "replicate")  # the `padding` config key of afn, affinity and nbg
 
 
 def check_padding(config: FamilyConfig) -> None:

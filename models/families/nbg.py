@@ -29,7 +29,8 @@ Choices the paper leaves open (all in `NBGConfig`, stored in checkpoints):
   max(0.2, 1 / (history + 1)): uniform average over the first frames, then the 0.8 / 0.2
   moving average); state `ta` and `geometry`.
 - GuideNet activation: leaky ReLU with slope `negative_slope` = 0.2 (the official code's lrelu;
-  the paper's text says ReLU: slope 0). Zero ("SAME") padding as the official conv layers.
+  the paper's text says ReLU: slope 0). Zero ("SAME") padding as the official conv layers
+  (`padding` "zeros"), or "replicate": the edge pixel repeated, as afn's and affinity's key.
 - Initialisation `init` = "glorot" (Glorot-uniform weights, TF's default that the official code
   gets; biases 0); "uniform" is the paper's text (U[-1, 1], which saturates the sigmoid),
   "torch" PyTorch's default.
@@ -74,7 +75,7 @@ from ..accumulation import (
     AccumulatingConfig,
     demodulate_and_accumulate,
 )
-from ..base import DenoiserModel, register_family
+from ..base import DenoiserModel, check_padding, pad_convs, register_family
 from ..features import depth01
 from ..ops.bilateral_grid import bilateral_grid
 
@@ -103,6 +104,7 @@ class NBGConfig(AccumulatingConfig):
     outlier_albedo: float = 0.1
     outlier_normal: float = 0.1
     guide_tonemap: str = "gamma"  # GuideNet's radiance input: "gamma" (Meng20, clipped) or "log1p"
+    padding: str = "zeros"  # GuideNet's convs past the frame's edge: "zeros" or "replicate"
 
     def validate(self) -> None:
         super().validate()  # AccumulatingConfig: the reprojection
@@ -127,6 +129,7 @@ class NBGConfig(AccumulatingConfig):
             )
         if self.init not in INITS:
             raise self.fail(f"init must be one of {INITS}, got {self.init!r}")
+        check_padding(self)
         if self.outlier_sigma <= 0:
             raise self.fail(f"outlier_sigma must be > 0, got {self.outlier_sigma}")
 
@@ -208,6 +211,7 @@ class GuideNet(nn.Module):
             elif config.init == "uniform":  # Meng20 s.5: "uniform random values from -1 to 1"
                 nn.init.uniform_(conv.weight, -1.0, 1.0)
                 nn.init.uniform_(conv.bias, -1.0, 1.0)
+        pad_convs(self, config.padding)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = F.leaky_relu(self.conv1(x), self.negative_slope)
