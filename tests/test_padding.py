@@ -32,7 +32,7 @@ def _conv_outputs(model: torch.nn.Module, buffers: dict) -> list[torch.Tensor]:
 
 
 @pytest.mark.parametrize("family", sorted(CONFIGS))
-def test_replicate_padding_gives_another_image_and_exports(family: str):
+def test_replicate_padding_changes_the_edge_and_exports(family: str):
     """padding="replicate": every k x k conv repeats the frame's edge pixel instead of reading
     zeros past it (1 x 1 convs unchanged); with the same weights every k x k conv's output
     changes at the frame's edge (the first conv's only there), and ORT (fast and portable)
