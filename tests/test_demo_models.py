@@ -62,8 +62,6 @@ HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "smape": False, "relmse": False}
 KNOWN_WORSE = {
     ("crossreg", 2, "relmse"),
 }
-# families whose demo still smears the committed emitter strip (test_small_bright_lights_...)
-SMEARS_SMALL_LIGHTS = {"affinity"}
 
 
 @pytest.mark.parametrize("family", FAMILIES)
@@ -188,24 +186,12 @@ def test_one_state_path_and_both_bridges_give_the_same_bits(family):
     np.testing.assert_allclose(np.stack(runs["portable"]), np.stack(runs["native"]), atol=1e-3)
 
 
-@pytest.mark.parametrize(
-    "family",
-    [
-        pytest.param(
-            f,
-            marks=pytest.mark.xfail(strict=True, reason="this demo still smears small lights"),
-        )
-        if f in SMEARS_SMALL_LIGHTS
-        else f
-        for f in FAMILIES
-    ],
-)
+@pytest.mark.parametrize("family", FAMILIES)
 def test_small_bright_lights_stay_in_place(family):
     """Issue 31: committed seq_000 has a thin emitter strip (noisy ~59, the wall beside it ~0.04,
     with the wall's albedo, normal and depth). A demo keeps its energy there: relMSE far below
     the noisy input's, and no pixel whose reference is dark gets more than a few units (earlier
-    demos put 10-18 there: benchmarks/README.md). Strict xfail for the demos that do not yet
-    (SMEARS_SMALL_LIGHTS): the day one does, the test says so."""
+    demos put 10-18 there: benchmarks/README.md). Every demo since 2026-12-05."""
     folder = sample_sequences()[0]
     frames, refs = load_sequence(folder)
     denoiser = Denoiser(f"demo:{family}")
