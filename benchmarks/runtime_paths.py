@@ -27,7 +27,7 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before numba's OpenMP lay
 
 import numpy as np  # noqa: E402
 
-from rtdenoise.runtime.bridge.extensions import BRIDGES  # noqa: E402
+from rtdenoise.runtime.bridge import BRIDGES  # noqa: E402
 from rtdenoise.runtime.denoiser import Denoiser  # noqa: E402
 from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
 from rtdenoise.runtime.sequences.compare import model_contender, summarize_times, time_interleaved  # noqa: E402

@@ -3,6 +3,11 @@
 out[n, c, y, x] = bilinear sample of previous[n, c] at (clamp(x + mx, 0, W - 1),
                   clamp(y + my, 0, H - 1)),   (mx, my) = motion[n, :, y, x]
 
+or, with `nearest` = 1, the pixel nearest to that position, previous[n, c, floor(py + 0.5),
+floor(px + 0.5)] with (px, py) the clamped position (Isik21's W_t, affinity's history warp;
+a copy, so every form gives the same bits). `nearest` is optional: nodes exported before it
+existed are bilinear.
+
 Motion is in pixels, previous position = current position + motion (docs/contract.md); pixel
 centres sit at integer coordinates; positions beyond the image read its border (the caller
 rejects them with an in-bounds test). This is `grid_sample(previous, grid, "bilinear",
@@ -23,6 +28,8 @@ def _check(shapes, attrs) -> None:
     same_nhw("Reproject", shapes, ("previous", "motion"))
     if shapes[1][1] != 2:
         raise ValueError(f"Reproject: motion has {shapes[1][1]} channels; expected 2 (x, y)")
+    if attrs["nearest"] not in (0, 1):
+        raise ValueError(f"Reproject: nearest is {attrs['nearest']}; expected 0 or 1")
 
 
 def _example_inputs(shape, attrs, rng: np.random.Generator) -> list[np.ndarray]:
@@ -38,10 +45,15 @@ def _example_inputs(shape, attrs, rng: np.random.Generator) -> list[np.ndarray]:
 SPEC = OpSpec(
     name="Reproject",
     doc="out[n,c,y,x] = bilinear(previous[n,c], clamp(x+motion[n,0,y,x], 0, W-1), "
-    "clamp(y+motion[n,1,y,x], 0, H-1)): the previous frame warped to the current pixels",
+    "clamp(y+motion[n,1,y,x], 0, H-1)): the previous frame warped to the current pixels; "
+    "nearest = 1: the pixel nearest to that position",
     inputs=(Arg("previous"), Arg("motion")),
     outputs=(Arg("output"),),
     output_shapes=lambda shapes, attrs: [tuple(shapes[0])],
+    attrs=("nearest",),
+    default_attrs={"nearest": 0},
+    example_attrs=({"nearest": 0}, {"nearest": 1}),
+    optional_attrs={"nearest": 0},  # models exported before nearest existed
     check=_check,
     example_inputs=_example_inputs,
     example_shapes=((1, 3, 13, 17), (2, 8, 8, 6), (1, 1, 1, 5)),

@@ -70,10 +70,14 @@ def test_warp_is_nearest_neighbour_at_previous_position():
 
 def test_pipeline_calls_the_affinity_kernels(model: Affinity):
     calls = []
-    with observe_calls(lambda op, inputs, attrs, ms: calls.append((op.name, attrs["dilation"]))):
+    with observe_calls(lambda op, inputs, attrs, ms: calls.append((op.name, dict(attrs)))):
         model(_buffers(0), model.initial_state(N, H, W), torch.tensor(1.0))
+    # one nearest-neighbour Reproject per state tensor (the history warp, Isik21 W_t), then
     # K = 3: two spatial kernels at dilation 1 and 2, the last with the temporal one at 4
-    assert calls == [("AffinityFilter", 1), ("AffinityFilter", 2), ("TemporalAffinityFilter", 4)]
+    warps = [attrs for name, attrs in calls if name == "Reproject"]
+    assert warps == [{"nearest": 1}] * len(model.state_specs)
+    kernels = [(name, attrs["dilation"]) for name, attrs in calls if name != "Reproject"]
+    assert kernels == [("AffinityFilter", 1), ("AffinityFilter", 2), ("TemporalAffinityFilter", 4)]
 
 
 def test_embedding_averages_samples_and_any_sample_count_runs(model: Affinity):
@@ -108,10 +112,11 @@ def exported(model: Affinity) -> bytes:
 
     proto = export_model(model)
     custom = sorted(n.op_type for n in proto.graph.node if n.domain == "rtdenoise")
-    assert custom == ["AffinityFilter", "AffinityFilter", "TemporalAffinityFilter"]
-    assert {"ReduceMean", "GatherElements", "MaxPool", "Resize"} <= {
-        n.op_type for n in proto.graph.node
-    }
+    warps = ["Reproject"] * len(model.state_specs)  # the history, one op per state tensor
+    assert custom == ["AffinityFilter", "AffinityFilter", *warps, "TemporalAffinityFilter"]
+    ops = {n.op_type for n in proto.graph.node}
+    assert {"ReduceMean", "MaxPool", "Resize"} <= ops
+    assert not {"GatherElements", "Expand"} & ops  # no gather spelled out at full resolution
     assert "option.kernel_size" in [i.name for i in proto.graph.input]
     return proto.SerializeToString()
 

@@ -251,9 +251,10 @@ def test_a_bad_kernel_size_input_is_an_ort_error_naming_op_and_cause(size, messa
     assert np.isnan(sess.run(None, feed)[0]).all()
 
 
-def test_empty_inputs_give_empty_outputs():
-    sess = cpp_session(eops.single_op_model("Reproject", None, {}, with_function=False))
-    out = sess.run(
+@pytest.mark.parametrize("nearest", [0, 1])
+def test_empty_inputs_give_empty_outputs(nearest):
+    model = eops.single_op_model("Reproject", None, {"nearest": nearest}, with_function=False)
+    out = cpp_session(model).run(
         None,
         {
             "previous": np.zeros((1, 3, 0, 4), np.float32),

@@ -53,6 +53,50 @@ def test_forms_agree_on_example_inputs(case):
     assert outs["torch"].shape == tuple(expected)
 
 
+OPTIONAL = sorted(name for name, spec in SPECS.items() if spec.optional_attrs)
+
+
+@pytest.mark.parametrize("name", OPTIONAL)
+def test_a_node_without_its_optional_attributes_runs_as_before(name):
+    """A node exported before an attribute existed (the spec's optional_attrs omitted) runs on
+    every path as the torch form with their values: the native bridges and the function body
+    fill them in; onnxruntime-extensions refuses a node without a declared attribute, so the
+    runtime writes them out before loading a model on that bridge
+    (`fill_optional_attributes`, which `open_session` calls there)."""
+    from rtdenoise.runtime.bridge import native_cpp
+    from rtdenoise.runtime.static_check import fill_optional_attributes
+
+    spec = SPECS[name]
+    attrs = {**spec.default_attrs, **spec.optional_attrs}
+    inputs = spec.example_inputs((1, 3, 16, 24), attrs, np.random.default_rng(5))
+    feed = dict(zip(spec.input_names, inputs, strict=True))
+    with torch.no_grad():
+        want = TORCH_OPS[name].reference(*[torch.from_numpy(x) for x in inputs], **attrs)
+    want = [t.numpy() for t in (want if isinstance(want, tuple | list) else (want,))]
+    bridges = ["", "native", "extensions"]
+    bridges += ["native-cpp"] if name in native_cpp.covered_ops() else []
+    for b in bridges:
+        model = eops.single_op_model(name, None, attrs, with_function=b != "native-cpp")
+        (node,) = model.graph.node
+        kept = [a for a in node.attribute if a.name not in spec.optional_attrs]
+        del node.attribute[:]
+        node.attribute.extend(kept)
+        data = model.SerializeToString()
+        filled = fill_optional_attributes(data)
+        assert filled is not None and fill_optional_attributes(filled) is None
+        (node,) = onnx.load_from_string(filled).graph.node
+        assert {a.name: a.i for a in node.attribute} == attrs
+        so = ort.SessionOptions()
+        if b:
+            assert fast_bridge.register_fast_kernels(so, b, [name]) == b
+        sess = ort.InferenceSession(filled if b == "extensions" else data, so)
+        before = fast_bridge.CALLS[name]
+        outs = sess.run(None, feed)
+        assert fast_bridge.CALLS[name] - before == (1 if b in ("native", "extensions") else 0), b
+        for got, ref in zip(outs, want, strict=True):
+            assert rel_err(got, ref) <= RTOL, (b or "portable", rel_err(got, ref))
+
+
 @pytest.mark.parametrize("name", sorted(SPECS))
 def test_onnx_form_matches_spec(name):
     spec = SPECS[name]

@@ -336,52 +336,11 @@ def test_per_tap_hdr_is_the_plain_average_where_no_tap_is_an_outlier(scale) -> N
         assert 0 < dropped.mean() < 1, form
 
 
-def _without_per_tap(with_function: bool):
-    """A one-node model whose node has no per_tap attribute, as exported before it existed."""
-    from rtdenoise.export import ops as eops
-
-    model = eops.single_op_model(OP, None, {"per_tap": 0}, with_function=with_function)
-    node = model.graph.node[0]
-    del node.attribute[:]
-    assert not [a for a in model.graph.node[0].attribute if a.name == "per_tap"]
-    return model
-
-
-def test_a_node_without_per_tap_runs_bilinear_on_every_path() -> None:
-    """The native bridges and the function body give an omitted per_tap its value 0;
-    onnxruntime-extensions refuses a node without a declared attribute, so the runtime writes
-    it out before loading a model on that bridge (`fill_optional_attributes`, which
-    `open_session` calls there)."""
-    import onnxruntime as ort
-
-    from rtdenoise.runtime import bridge as fast_bridge
-    from rtdenoise.runtime.static_check import fill_optional_attributes
-
-    inputs = _disocclusion()
-    feed = dict(zip(get_spec(OP).input_names, inputs, strict=True))
-    bilinear = _every_form(inputs, per_tap=0)["torch"]
-    bridges = ["", "native", "extensions"] + (["native-cpp"] if native_cpp_holds(OP) else [])
-    for b in bridges:
-        data = _without_per_tap(with_function=b != "native-cpp").SerializeToString()
-        if b == "extensions":
-            filled = fill_optional_attributes(data)
-            assert filled is not None and fill_optional_attributes(filled) is None
-            (node,) = onnx.load_from_string(filled).graph.node
-            assert [(a.name, a.i) for a in node.attribute] == [("per_tap", 0)]
-            data = filled
-        else:
-            assert fill_optional_attributes(data) is not None
-        so = ort.SessionOptions()
-        if b:
-            assert fast_bridge.register_fast_kernels(so, b, [OP]) == b
-        sess = ort.InferenceSession(data, so, providers=["CPUExecutionProvider"])
-        before = fast_bridge.CALLS[OP]
-        outs = sess.run(None, feed)
-        assert fast_bridge.CALLS[OP] - before == (1 if b in ("native", "extensions") else 0), b
-        for got, want in zip(outs, bilinear, strict=True):
-            np.testing.assert_array_equal(got, want, err_msg=b or "portable")
+def test_per_tap_must_be_0_1_or_2() -> None:
+    """(A node without per_tap runs bilinear on every path: test_op_specs.py's
+    test_a_node_without_its_optional_attributes_runs_as_before.)"""
     with pytest.raises(ValueError, match="per_tap is 3"):
-        KERNELS[OP](*inputs, per_tap=3)
+        KERNELS[OP](*_disocclusion(), per_tap=3)
 
 
 def test_shipped_demo_runs_on_the_extensions_bridge_with_per_tap_written_out() -> None:

@@ -1,9 +1,11 @@
 """Reproject as an ONNX function body; spec: rtdenoise.ops.reproject.
 
-Body: the clamped source position p = clip(pixel + motion, 0, size - 1), its floor and
-fraction, the flat indices of the four taps, four GatherElements on the (N, C, H*W) planes and
-the weighted sum nw (1 - wy)(1 - wx) + ne (1 - wy) wx + sw wy (1 - wx) + se wy wx: the torch
-form's arithmetic, node for node.
+Body: an If on the attribute nearest, each branch from the clamped source position
+p = clip(pixel + motion, 0, size - 1):
+- bilinear (0): its floor and fraction, the flat indices of the four taps, four GatherElements
+  on the (N, C, H*W) planes and the weighted sum nw (1 - wy)(1 - wx) + ne (1 - wy) wx +
+  sw wy (1 - wx) + se wy wx: the torch form's arithmetic, node for node;
+- nearest (1): floor(p + 0.5) on each axis and one GatherElements.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import onnx
 from onnx import TensorProto, helper
 
-from .base import float_const, function_body, int_const
+from .base import attr_const, float_const, function_body, int_const
 
 
 def _tap(name: str, yi: str, xi: str) -> list[onnx.NodeProto]:
@@ -83,9 +85,34 @@ def sampling_grid(state: str, opset: int) -> list[onnx.NodeProto]:
     ]
 
 
-@function_body("Reproject")
-def reproject_body(opset: int) -> list[onnx.NodeProto]:
-    """rtdenoise.Reproject in standard ops."""
+def _nearest_axis(a: str, pixel: str, motion: str, size_f: str) -> list[onnx.NodeProto]:
+    """The clamped position along one axis rounded to the nearest pixel -> int64 index a0."""
+    mk = helper.make_node
+    return [
+        mk("Sub", [size_f, "f1"], [f"{a}_max"]),
+        mk("Add", [pixel, motion], [f"{a}_pos"]),
+        mk("Max", [f"{a}_pos", "f0"], [f"{a}_lo"]),
+        mk("Min", [f"{a}_lo", f"{a}_max"], [f"{a}_p"]),
+        mk("Add", [f"{a}_p", "f_half"], [f"{a}_round"]),
+        mk("Floor", [f"{a}_round"], [f"{a}_floor"]),
+        mk("Cast", [f"{a}_floor"], [f"{a}0"], to=TensorProto.INT64),
+    ]
+
+
+def nearest_nodes(opset: int) -> list[onnx.NodeProto]:
+    """previous, motion -> output: the nearest pixel of the clamped source position."""
+    return [
+        *sampling_grid("previous", opset),
+        float_const("f_half", 0.5),
+        *_nearest_axis("x", "xs", "mx", "w_f"),
+        *_nearest_axis("y", "ys", "my", "h_f"),
+        *_tap("nearest", "y0", "x0"),
+        helper.make_node("Identity", ["nearest"], ["output"]),
+    ]
+
+
+def bilinear_nodes(opset: int) -> list[onnx.NodeProto]:
+    """previous, motion -> output: the bilinear sample (TemporalAccumulation's warp too)."""
     mk = helper.make_node
     return [
         *sampling_grid("previous", opset),
@@ -111,4 +138,29 @@ def reproject_body(opset: int) -> list[onnx.NodeProto]:
         mk("Add", ["t_nw", "t_ne"], ["s1"]),
         mk("Add", ["s1", "t_sw"], ["s2"]),
         mk("Add", ["s2", "t_se"], ["output"]),
+    ]
+
+
+def _branch(name: str, nodes: list[onnx.NodeProto]) -> onnx.GraphProto:
+    """A subgraph of the If: `nodes` with their output renamed `<name>_output`."""
+    for node in nodes:
+        node.output[:] = [f"{name}_output" if o == "output" else o for o in node.output]
+    out = helper.make_tensor_value_info(f"{name}_output", TensorProto.FLOAT, None)
+    return helper.make_graph(nodes, f"reproject_{name}", [], [out])
+
+
+@function_body("Reproject")
+def reproject_body(opset: int) -> list[onnx.NodeProto]:
+    """rtdenoise.Reproject in standard ops: If(nearest) nearest, else bilinear."""
+    mk = helper.make_node
+    return [
+        attr_const("rp_nearest", "nearest"),
+        mk("Cast", ["rp_nearest"], ["rp_nearest_b"], to=TensorProto.BOOL),
+        mk(
+            "If",
+            ["rp_nearest_b"],
+            ["output"],
+            then_branch=_branch("nearest", nearest_nodes(opset)),
+            else_branch=_branch("bilinear", bilinear_nodes(opset)),
+        ),
     ]

@@ -21,7 +21,7 @@ from onnx import TensorProto, helper
 from rtdenoise.ops.temporal_accumulation import HDR_FLOOR, HDR_RATIO
 
 from .base import attr_const, float_const, function_body, int_const
-from .reproject import reproject_body, sampling_grid
+from .reproject import bilinear_nodes, sampling_grid
 
 OUTPUTS = ("accumulated", "blend", "next_ta", "next_geometry")
 
@@ -72,7 +72,7 @@ def _bilinear_body(opset: int) -> list[onnx.NodeProto]:
     """per_tap = 0: the whole state warped by Reproject, its geometry tested per pixel."""
     mk = helper.make_node
     warp = [mk("Concat", ["ta_state", "geometry_state"], ["previous"], axis=1)]
-    warp += reproject_body.body(opset)  # previous, motion -> output (the warped state)
+    warp += bilinear_nodes(opset)  # previous, motion -> output (the warped state)
     channels = [
         mk("Shape", ["current"], ["ta_c"], start=1, end=2),  # [C]
         mk("Add", ["ta_c", "one_i"], ["ta_c1"]),

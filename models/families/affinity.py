@@ -8,8 +8,8 @@
 2. per-sample embedding (3.2, eq. (1)): a pointwise FC net (`embed_layers` x `embed_width`,
    leaky ReLU) on every sample, averaged over the samples: e_t (1 x 1 convs + a mean, in ONNX
    Conv and ReduceMean over a dynamic S);
-3. warp (3.3): the previous state, nearest-neighbour at p + motion (a gather), masked where
-   the reprojection is invalid (see below);
+3. warp (3.3): the previous state, nearest-neighbour at p + motion (`ops.reproject` with
+   nearest = 1, one op per state tensor), masked where the reprojection is invalid (see below);
 4. U-Net (3.3, eq. (2)) on [e_t, W e_{t-1}] ->
    per kernel k: features f^k (d), bandwidth a^k = x^2, centre weight c^k = sigmoid(x);
    temporal bandwidth b = x^2 and accumulation weight lambda = sigmoid(x);
@@ -78,6 +78,7 @@ from ..base import (
     register_family,
 )
 from ..ops.affinity_filter import affinity_filter
+from ..ops.reproject import reproject
 from ..ops.temporal_affinity_filter import temporal_affinity_filter
 
 
@@ -217,19 +218,22 @@ class UNet(nn.Module):
         return x
 
 
-def warp_nearest(x: torch.Tensor, motion: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Isik21's W_t: x (N, C, H, W) of the previous frame read at the nearest pixel of
-    p + motion (previous = current + motion, docs/contract.md), and (N, 1, H, W) bool: that
-    pixel lies inside the previous frame (outside, the clamped border pixel is read)."""
-    n, c, h, w = x.shape
-    xs = torch.arange(w, device=x.device, dtype=motion.dtype).view(1, 1, w)
-    ys = torch.arange(h, device=x.device, dtype=motion.dtype).view(1, h, 1)
+def inside_previous_frame(motion: torch.Tensor) -> torch.Tensor:
+    """(N, 1, H, W) bool: the pixel nearest to p + motion (previous = current + motion,
+    docs/contract.md) lies inside the previous frame."""
+    _, _, h, w = motion.shape
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
     px = torch.floor(xs + motion[:, 0] + 0.5)
     py = torch.floor(ys + motion[:, 1] + 0.5)
-    inside = (px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)
-    index = (py.clamp(0, h - 1) * w + px.clamp(0, w - 1)).to(torch.int64).reshape(n, 1, h * w)
-    warped = x.reshape(n, c, h * w).gather(2, index.expand(n, c, h * w))
-    return warped.reshape(n, c, h, w), inside.unsqueeze(1)
+    return ((px >= 0) & (px <= w - 1) & (py >= 0) & (py <= h - 1)).unsqueeze(1)
+
+
+def warp_nearest(x: torch.Tensor, motion: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Isik21's W_t: x (N, C, H, W) of the previous frame read at the nearest pixel of
+    p + motion (Reproject with nearest = 1: one op, a copy), and where that pixel lies inside
+    the previous frame (outside, the clamped border pixel is read)."""
+    return reproject(x, motion, nearest=1), inside_previous_frame(motion)
 
 
 @register_family
@@ -347,11 +351,9 @@ class Affinity(DenoiserModel):
         embedding = self.embedding(self._network_samples(samples))
 
         # 3. Warp the previous state (nearest neighbour), masked where it is invalid.
-        names = [s.name for s in self.state_specs]
-        warped, inside = warp_nearest(torch.cat([state[n] for n in names], dim=1), motion)
-        prev = dict(
-            zip(names, warped.split([s.channels for s in self.state_specs], 1), strict=True)
-        )
+        # One Reproject per state tensor: no concatenated copy of the state to warp and split.
+        inside = inside_previous_frame(motion)
+        prev = {s.name: reproject(state[s.name], motion, nearest=1) for s in self.state_specs}
         valid = self._valid(inside, geometry, prev["geometry"], reset)
         keep = valid > 0.5  # `where`, not a product: a non-finite history cannot leak
         prev_embedding = torch.where(keep, prev["embedding"], embedding)
@@ -450,5 +452,6 @@ __all__ = [
     "UNet",
     "parameter_count",
     "smape_l1",
+    "inside_previous_frame",
     "warp_nearest",
 ]

@@ -26,20 +26,36 @@ def bilinear_taps(motion: torch.Tensor) -> tuple[torch.Tensor, ...]:
     return (*taps, wx, wy)
 
 
+def nearest_tap(motion: torch.Tensor) -> torch.Tensor:
+    """For every pixel of (N, 2, H, W) motion: the flat index (N, H*W) in an H*W plane of the
+    pixel nearest to the clamped source position, floor(p + 0.5) on each axis."""
+    n, _, h, w = motion.shape
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
+    px = torch.floor(torch.clamp(xs + motion[:, 0], 0.0, w - 1.0) + 0.5).long()
+    py = torch.floor(torch.clamp(ys + motion[:, 1], 0.0, h - 1.0) + 0.5).long()
+    return (py * w + px).reshape(n, h * w)
+
+
 @torch_op("Reproject")
-def reproject(previous: torch.Tensor, motion: torch.Tensor) -> torch.Tensor:
-    """Bilinearly sample `previous` (N, C, H, W) at current + motion, clamped to the image.
+def reproject(previous: torch.Tensor, motion: torch.Tensor, nearest: int = 0) -> torch.Tensor:
+    """Bilinearly sample `previous` (N, C, H, W) at current + motion, clamped to the image,
+    or (`nearest` = 1) read the pixel nearest to that position.
 
     Differentiable tensor-op form (the numeric reference): four gathers weighted
     nw (1 - wy)(1 - wx) + ne (1 - wy) wx + sw wy (1 - wx) + se wy wx, summed in that order,
-    the arithmetic the function body and the fast kernel repeat step by step.
+    the arithmetic the function body and the fast kernel repeat step by step; one gather
+    for `nearest`.
     """
     n, c, h, w = previous.shape
-    *taps, wx, wy = bilinear_taps(motion)
     flat = previous.reshape(n, c, h * w)
 
     def tap(index: torch.Tensor) -> torch.Tensor:
         return torch.gather(flat, 2, index.unsqueeze(1).expand(n, c, h * w)).reshape(n, c, h, w)
+
+    if nearest:
+        return tap(nearest_tap(motion))
+    *taps, wx, wy = bilinear_taps(motion)
 
     ex, ey = (1.0 - wx).unsqueeze(1), (1.0 - wy).unsqueeze(1)
     wx, wy = wx.unsqueeze(1), wy.unsqueeze(1)

@@ -1,5 +1,8 @@
 """Reproject as a fast kernel; spec: rtdenoise.ops.reproject.
 
+`nearest` = 1: one offset per pixel of the row (the clamped position rounded), then a copy per
+channel.
+
 One output row per parallel iteration: the row's source positions, the flat offsets of their
 four taps and the bilinear weights are computed once (clamped to the image, so every tap is in
 bounds, whatever the motion), then every channel gathers its four taps per pixel. The float32
@@ -89,7 +92,46 @@ def _reproject_nb(previous, motion, out):
             )
 
 
+@njit(cache=True)
+def _nearest(motion_x, motion_y, y, h, index):
+    """Per pixel x of the row: the flat offset index[x] (into a plane of h * w) of the pixel
+    nearest to the clamped source position, floor(p + 0.5), in float32 as the torch form."""
+    w = motion_x.shape[0]
+    zero, half = np.float32(0.0), np.float32(0.5)
+    fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
+    for x in range(w):
+        px = np.float32(x) + motion_x[x]
+        py = np.float32(y) + motion_y[x]
+        if not px > zero:  # clamped as _taps (NaN lands in the image)
+            px = zero
+        if not px < fw1:
+            px = fw1
+        if not py > zero:
+            py = zero
+        if not py < fh1:
+            py = fh1
+        index[x] = int(py + half) * w + int(px + half)  # floor: >= 0.5
+
+
+@njit(parallel=True, cache=True)
+def _reproject_nearest_nb(previous, motion, out):
+    n_img, n_ch, h, w = previous.shape
+    planes = previous.reshape(n_img, n_ch, h * w)
+    for row in prange(n_img * h):
+        n = row // h
+        y = row - n * h
+        index = np.empty(w, np.int64)
+        _nearest(motion[n, 0, y], motion[n, 1, y], y, h, index)
+        for c in range(n_ch):
+            plane, dst = planes[n, c], out[n, c, y]
+            for x in range(w):
+                dst[uintp(x)] = plane[uintp(index[x])]
+
+
 @fast_kernel("Reproject")
-def reproject(previous: np.ndarray, motion: np.ndarray, out: np.ndarray) -> None:
-    """previous (N, C, H, W), motion (N, 2, H, W) -> out (N, C, H, W)."""
-    _reproject_nb(previous, motion, out)
+def reproject(previous: np.ndarray, motion: np.ndarray, out: np.ndarray, nearest: int = 0) -> None:
+    """previous (N, C, H, W), motion (N, 2, H, W) -> out (N, C, H, W), bilinear or nearest."""
+    if nearest:
+        _reproject_nearest_nb(previous, motion, out)
+    else:
+        _reproject_nb(previous, motion, out)

@@ -161,13 +161,15 @@ using namespace filters;
 
 /* ------------------------------------------------------------------ Reproject */
 
-std::string reproject_shapes(const Tensor *in, const int64_t *, Shape *out) {
+std::string reproject_shapes(const Tensor *in, const int64_t *attrs, Shape *out) {
     const char *names[] = {"previous", "motion"};
     std::string e = same_nhw("Reproject", in, names, 2);
     if (!e.empty()) return e;
     if (in[1].dims[1] != 2)
         return "Reproject: motion has " + std::to_string(in[1].dims[1]) +
                " channels; expected 2 (x, y)";
+    if (attrs[0] != 0 && attrs[0] != 1)
+        return "Reproject: nearest is " + std::to_string(attrs[0]) + "; expected 0 or 1";
     copy_shape(in[0], out[0]);
     return "";
 }
@@ -244,9 +246,43 @@ RTD_CLONES void reproject_rows(const ReprojectArgs &a, int64_t begin, int64_t en
     }
 }
 
-void reproject_run(const Tensor *in, Tensor *out, const int64_t *, int threads) {
+/* kernels/reproject.py _nearest: the flat offset of each pixel's nearest source pixel,
+ * floor(p + 0.5) of the clamped position (>= 0.5, so truncation is the floor). */
+RTD_INLINE void nearest_row(const float *RESTRICT mx, const float *RESTRICT my, int64_t y,
+                            int64_t h, int64_t w, int32_t *RESTRICT index) {
+    const float half = 0.5f, fw1 = static_cast<float>(w - 1), fh1 = static_cast<float>(h - 1);
+    const float y_f = static_cast<float>(y);
+    const int32_t w32 = static_cast<int32_t>(w);
+    for (int32_t x = 0; x < w32; ++x) {
+        const int32_t cx = static_cast<int32_t>(clamped(static_cast<float>(x) + mx[x], fw1) + half);
+        const int32_t cy = static_cast<int32_t>(clamped(y_f + my[x], fh1) + half);
+        index[x] = cy * w32 + cx;
+    }
+}
+
+RTD_CLONES void reproject_nearest_rows(const ReprojectArgs &a, int64_t begin, int64_t end) {
+    const int64_t h = a.h, w = a.w, hw = h * w;
+    std::vector<int32_t> index(static_cast<size_t>(w));
+    for (int64_t row = begin; row < end; ++row) {
+        const int64_t n = row / h, y = row - n * h;
+        const float *m = a.motion + (n * 2 * h + y) * w;
+        nearest_row(m, m + hw, y, h, w, index.data());
+        for (int64_t c = 0; c < a.n_ch; ++c) {
+            const float *RESTRICT plane = a.previous + (n * a.n_ch + c) * hw;
+            float *RESTRICT dst = a.out + ((n * a.n_ch + c) * h + y) * w;
+            for (int64_t x = 0; x < w; ++x) dst[x] = plane[index[x]];
+        }
+    }
+}
+
+void reproject_run(const Tensor *in, Tensor *out, const int64_t *attrs, int threads) {
     ReprojectArgs a{in[0].data, in[1].data, out[0].data, in[0].dims[1], in[0].dims[2],
                     in[0].dims[3]};
+    if (attrs[0] == 1) {
+        parallel_for(in[0].dims[0] * a.h, threads, out[0].size() + 4 * in[1].size(),
+                     [&](int64_t b, int64_t e) { reproject_nearest_rows(a, b, e); });
+        return;
+    }
     parallel_for(in[0].dims[0] * a.h, threads, 4 * out[0].size() + 8 * in[1].size(),
                  [&](int64_t b, int64_t e) { reproject_rows(a, b, e); });
 }
@@ -494,6 +530,8 @@ const char *const SKA_IN[] = {"image", "logits"};
 const char *const KF_IN[] = {"images", "logits"};
 const char *const AF_IN[] = {"d_ta", "d_low", "alpha"};
 const char *const RP_IN[] = {"previous", "motion"};
+const char *const RP_ATTRS[] = {"nearest"};
+const int64_t RP_OPTIONAL[] = {0};  // nearest: nodes exported before it are bilinear
 const char *const WSF_ATTRS[] = {"size_min", "size_step", "count"};
 const char *const WSF_IN[] = {"image", "weights"};
 const char *const BG_ATTRS[] = {"cell_size", "grid_depth"};
@@ -510,7 +548,7 @@ const OpDef OPS[] = {
      softmax_kernel_apply_run},
     {"KernelFusion", 2, 1, R4, KF_IN, nullptr, 0, kernel_fusion_shapes, kernel_fusion_run},
     {"AdaptiveFusion", 3, 1, R4, AF_IN, nullptr, 0, adaptive_fusion_shapes, adaptive_fusion_run},
-    {"Reproject", 2, 1, R4, RP_IN, nullptr, 0, reproject_shapes, reproject_run},
+    {"Reproject", 2, 1, R4, RP_IN, RP_ATTRS, 1, reproject_shapes, reproject_run, 1, RP_OPTIONAL},
     {"TemporalAccumulation", 11, 4, TA_RANKS, TA_IN, TA_ATTRS, 1, temporal_accumulation_shapes,
      temporal_accumulation_run, 1, TA_OPTIONAL},
     {"WeightSharingFilter", 2, 1, R4, WSF_IN, WSF_ATTRS, 3, weight_sharing_filter_shapes,
