@@ -37,6 +37,10 @@ TRAIN=(--seed "$TRAIN_SEED" --frames 8 --size "$SIZE" --spp-ref "$TRAIN_SPP"
     --exclude-kinds "$HELD_OUT")
 VAL=(--seed "$VAL_SEED" --frames 12 --size "$SIZE" --spp-ref "$VAL_SPP")
 mkdir -p "$DATA/train_v2" "$DATA/val_v2"
+# `nice` alone does not yield under `setsid`: with the kernel's autogroup scheduling (on by
+# default) a new session is a group of its own with a fair share against the shell's, so two
+# niced renders took two thirds of the 2 cores from a benchmark. Lower the group's weight too.
+if [ -w /proc/self/autogroup ]; then echo 19 > /proc/self/autogroup 2>/dev/null || true; fi
 cd "$DATA"  # not a source tree: `python -m` puts the working folder first on sys.path
 
 # The two sets must not share a scene seed (sequence i of a job has scene seed
