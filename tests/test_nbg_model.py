@@ -226,3 +226,42 @@ def test_exports_three_grid_nodes_and_matches_ort_over_eight_frames():
         frame["color"][:, 5, 5] = 500.0  # a firefly for the outlier test
     report = validate(model, data, synthetic)
     assert report.passed, report.errors
+
+
+def test_middle_layers_deepen_guidenet_and_export():
+    """`middle_layers` hidden -> hidden convs (k = middle_kernel_size, leaky ReLU) between
+    GuideNet's two: their parameters, their effect on the guides, and an export that ORT
+    (fast and portable) follows over a committed 8-frame sequence."""
+    from rtdenoise.export.onnx_export import export_model
+    from rtdenoise.export.validate import validate
+    from rtdenoise.models.data import load_sequence
+    from rtdenoise.shipped import sample_sequences
+
+    torch.manual_seed(0)
+    m = NBG({"hidden": 6, "middle_layers": 2, "middle_kernel_size": 3}).eval()
+    plain = 25 * 10 * 6 + 6 + 25 * 6 * 5 + 5
+    assert parameter_count(m) == plain + 2 * (9 * 6 * 6 + 6)
+    assert [c.kernel_size for c in m.guide_net.middle] == [(3, 3), (3, 3)]
+    x = torch.rand(1, 10, 12, 14)
+    guides = m.guide_net(x)
+    with torch.no_grad():
+        m.guide_net.middle[1].weight.zero_()
+        m.guide_net.middle[1].bias.fill_(0.5)  # the second middle conv outputs a constant
+    flat = m.guide_net(x)
+    assert float((guides - flat).abs().max()) > 1e-3
+    inner = flat[:, :, 2:-2, 2:-2]  # (conv2's zero padding shapes the 2-pixel border)
+    assert float(inner.std(dim=(2, 3)).max()) < 1e-6  # nothing of x reaches conv2 any more
+    assert NBG({"hidden": 6}).state_dict().keys() <= m.state_dict().keys()  # Meng20's names
+    with pytest.raises(ValueError, match="middle_layers"):
+        NBGConfig.from_dict({"middle_layers": -1})
+    with pytest.raises(ValueError, match="middle_kernel_size"):
+        NBGConfig.from_dict({"middle_kernel_size": 2})
+
+    torch.manual_seed(0)
+    model = NBG({"middle_layers": 1}).eval()
+    data = export_model(model).SerializeToString()
+    seq = load_sequence(sample_sequences()[0], model.inputs)
+    frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
+    report = validate(model, data, frames, tolerance=1e-4)
+    assert report.passed, report.errors
+    assert set(report.errors) == {"ort_fast", "ort_portable"}

@@ -93,6 +93,9 @@ class NBGConfig(AccumulatingConfig):
 
     hidden: int = 20
     kernel_size: int = 5
+    # (not in Meng20) hidden -> hidden convs between GuideNet's two, each with leaky ReLU
+    middle_layers: int = 0
+    middle_kernel_size: int = 3
     negative_slope: float = 0.2
     cell_sizes: tuple[int, ...] = tuple(s for s, _ in MENG20_GRIDS)
     grid_depths: tuple[int, ...] = tuple(d for _, d in MENG20_GRIDS)
@@ -112,6 +115,10 @@ class NBGConfig(AccumulatingConfig):
             raise self.fail(f"hidden must be >= 1, got {self.hidden}")
         if self.kernel_size < 1 or self.kernel_size % 2 == 0:
             raise self.fail(f"kernel_size must be odd, got {self.kernel_size}")
+        if self.middle_layers < 0:
+            raise self.fail(f"middle_layers must be >= 0, got {self.middle_layers}")
+        if self.middle_kernel_size < 1 or self.middle_kernel_size % 2 == 0:
+            raise self.fail(f"middle_kernel_size must be odd, got {self.middle_kernel_size}")
         if not self.cell_sizes or len(self.cell_sizes) != len(self.grid_depths):
             raise self.fail(
                 f"cell_sizes {self.cell_sizes} and grid_depths {self.grid_depths} must be "
@@ -196,15 +203,21 @@ def suppress_outliers(
 
 class GuideNet(nn.Module):
     """Meng20 Fig. 2 (left): conv k x k in -> hidden, leaky ReLU, conv k x k hidden -> out,
-    sigmoid."""
+    sigmoid; with `middle_layers` (0 in Meng20) hidden -> hidden convs, each with leaky ReLU,
+    between the two."""
 
     def __init__(self, in_channels: int, out_channels: int, config: NBGConfig) -> None:
         super().__init__()
         pad = config.kernel_size // 2
         self.conv1 = nn.Conv2d(in_channels, config.hidden, config.kernel_size, padding=pad)
+        k = config.middle_kernel_size
+        self.middle = nn.ModuleList(
+            nn.Conv2d(config.hidden, config.hidden, k, padding=k // 2)
+            for _ in range(config.middle_layers)
+        )
         self.conv2 = nn.Conv2d(config.hidden, out_channels, config.kernel_size, padding=pad)
         self.negative_slope = config.negative_slope
-        for conv in (self.conv1, self.conv2):
+        for conv in (self.conv1, *self.middle, self.conv2):
             if config.init == "glorot":
                 nn.init.xavier_uniform_(conv.weight)
                 nn.init.zeros_(conv.bias)
@@ -215,6 +228,8 @@ class GuideNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         x = F.leaky_relu(self.conv1(x), self.negative_slope)
+        for conv in self.middle:
+            x = F.leaky_relu(conv(x), self.negative_slope)
         return torch.sigmoid(self.conv2(x))
 
 
