@@ -29,14 +29,22 @@ def _tap(name: str, yi: str, xi: str) -> list[onnx.NodeProto]:
     ]
 
 
-def _axis_taps(a: str, pixel: str, motion: str, size_f: str, size_i: str) -> list:
-    """Clamped position along one axis -> floor index a0, next index a1 and fraction wa."""
+def _clamped_position(a: str, pixel: str, motion: str, size_f: str) -> list[onnx.NodeProto]:
+    """The source position along one axis, a_pos = pixel + motion, clamped: a_p."""
     mk = helper.make_node
     return [
         mk("Sub", [size_f, "f1"], [f"{a}_max"]),
         mk("Add", [pixel, motion], [f"{a}_pos"]),
         mk("Max", [f"{a}_pos", "f0"], [f"{a}_lo"]),
         mk("Min", [f"{a}_lo", f"{a}_max"], [f"{a}_p"]),
+    ]
+
+
+def _axis_taps(a: str, pixel: str, motion: str, size_f: str, size_i: str) -> list:
+    """Clamped position along one axis -> floor index a0, next index a1 and fraction wa."""
+    mk = helper.make_node
+    return [
+        *_clamped_position(a, pixel, motion, size_f),
         mk("Floor", [f"{a}_p"], [f"{a}_floor"]),
         mk("Sub", [f"{a}_p", f"{a}_floor"], [f"w{a}"]),
         mk("Cast", [f"{a}_floor"], [f"{a}0"], to=TensorProto.INT64),
@@ -89,10 +97,7 @@ def _nearest_axis(a: str, pixel: str, motion: str, size_f: str) -> list[onnx.Nod
     """The clamped position along one axis rounded to the nearest pixel -> int64 index a0."""
     mk = helper.make_node
     return [
-        mk("Sub", [size_f, "f1"], [f"{a}_max"]),
-        mk("Add", [pixel, motion], [f"{a}_pos"]),
-        mk("Max", [f"{a}_pos", "f0"], [f"{a}_lo"]),
-        mk("Min", [f"{a}_lo", f"{a}_max"], [f"{a}_p"]),
+        *_clamped_position(a, pixel, motion, size_f),
         mk("Add", [f"{a}_p", "f_half"], [f"{a}_round"]),
         mk("Floor", [f"{a}_round"], [f"{a}_floor"]),
         mk("Cast", [f"{a}_floor"], [f"{a}0"], to=TensorProto.INT64),

@@ -20,25 +20,26 @@ from .fast_kernel import fast_kernel
 
 
 @njit(cache=True)
+def _clamped(v, last):
+    """v clamped to [0, last], written so that NaN lands on 0 (NaN compares false)."""
+    if not v > np.float32(0.0):
+        v = np.float32(0.0)
+    if not v < last:
+        v = last
+    return v
+
+
+@njit(cache=True)
 def _taps(motion_x, motion_y, y, h, taps, weights):
     """Per pixel x of the row: the clamped source position -> the flat offsets of its four
     bilinear taps, taps[k, x] (k: nw, ne, sw, se, into a plane of h * w), and their weights
     weights[k, x], in float32 as the torch form computes them."""
     w = motion_x.shape[0]
-    zero, one = np.float32(0.0), np.float32(1.0)
+    one = np.float32(1.0)
     fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
     for x in range(w):
-        px = np.float32(x) + motion_x[x]
-        py = np.float32(y) + motion_y[x]
-        # clamped to the image; written so that NaN lands in it too (NaN compares false)
-        if not px > zero:
-            px = zero
-        if not px < fw1:
-            px = fw1
-        if not py > zero:
-            py = zero
-        if not py < fh1:
-            py = fh1
+        px = _clamped(np.float32(x) + motion_x[x], fw1)
+        py = _clamped(np.float32(y) + motion_y[x], fh1)
         cx = int(px)  # floor: px >= 0
         cy = int(py)
         x1 = min(cx + 1, w - 1)
@@ -97,19 +98,11 @@ def _nearest(motion_x, motion_y, y, h, index):
     """Per pixel x of the row: the flat offset index[x] (into a plane of h * w) of the pixel
     nearest to the clamped source position, floor(p + 0.5), in float32 as the torch form."""
     w = motion_x.shape[0]
-    zero, half = np.float32(0.0), np.float32(0.5)
+    half = np.float32(0.5)
     fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
     for x in range(w):
-        px = np.float32(x) + motion_x[x]
-        py = np.float32(y) + motion_y[x]
-        if not px > zero:  # clamped as _taps (NaN lands in the image)
-            px = zero
-        if not px < fw1:
-            px = fw1
-        if not py > zero:
-            py = zero
-        if not py < fh1:
-            py = fh1
+        px = _clamped(np.float32(x) + motion_x[x], fw1)
+        py = _clamped(np.float32(y) + motion_y[x], fh1)
         index[x] = int(py + half) * w + int(px + half)  # floor: >= 0.5
 
 
