@@ -13,7 +13,7 @@ exporter calls for `torch.ops.rtdenoise.<torch_name>.default`, and the FunctionP
 from __future__ import annotations
 
 import inspect
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import onnx
@@ -140,6 +140,21 @@ def attr_const(name: str, attr: str) -> onnx.NodeProto:
     ref.ref_attr_name = attr
     node.attribute.append(ref)
     return node
+
+
+def if_branch(
+    graph_name: str, prefix: str, nodes: list[onnx.NodeProto], outputs: Sequence[str]
+) -> onnx.GraphProto:
+    """A subgraph of an If on a function attribute: `nodes` with the function's `outputs`
+    renamed `<prefix>_<output>` (each branch declares its own), float tensors."""
+    rename = {o: f"{prefix}_{o}" for o in outputs}
+    for node in nodes:
+        node.input[:] = [rename.get(i, i) for i in node.input]
+        node.output[:] = [rename.get(o, o) for o in node.output]
+    values = [
+        helper.make_tensor_value_info(rename[o], onnx.TensorProto.FLOAT, None) for o in outputs
+    ]
+    return helper.make_graph(nodes, graph_name, [], values)
 
 
 def softmax_axis1(x: str, out: str, prefix: str, opset: int) -> list[onnx.NodeProto]:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import onnx
 from onnx import TensorProto, helper
 
-from .base import attr_const, float_const, function_body, int_const
+from .base import attr_const, float_const, function_body, if_branch, int_const
 
 
 def _tap(name: str, yi: str, xi: str) -> list[onnx.NodeProto]:
@@ -146,14 +146,6 @@ def bilinear_nodes(opset: int) -> list[onnx.NodeProto]:
     ]
 
 
-def _branch(name: str, nodes: list[onnx.NodeProto]) -> onnx.GraphProto:
-    """A subgraph of the If: `nodes` with their output renamed `<name>_output`."""
-    for node in nodes:
-        node.output[:] = [f"{name}_output" if o == "output" else o for o in node.output]
-    out = helper.make_tensor_value_info(f"{name}_output", TensorProto.FLOAT, None)
-    return helper.make_graph(nodes, f"reproject_{name}", [], [out])
-
-
 @function_body("Reproject")
 def reproject_body(opset: int) -> list[onnx.NodeProto]:
     """rtdenoise.Reproject in standard ops: If(nearest) nearest, else bilinear."""
@@ -165,7 +157,9 @@ def reproject_body(opset: int) -> list[onnx.NodeProto]:
             "If",
             ["rp_nearest_b"],
             ["output"],
-            then_branch=_branch("nearest", nearest_nodes(opset)),
-            else_branch=_branch("bilinear", bilinear_nodes(opset)),
+            then_branch=if_branch("reproject_nearest", "nearest", nearest_nodes(opset), ["output"]),
+            else_branch=if_branch(
+                "reproject_bilinear", "bilinear", bilinear_nodes(opset), ["output"]
+            ),
         ),
     ]

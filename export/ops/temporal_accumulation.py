@@ -20,7 +20,7 @@ from onnx import TensorProto, helper
 
 from rtdenoise.ops.temporal_accumulation import HDR_FLOOR, HDR_RATIO
 
-from .base import attr_const, float_const, function_body, int_const
+from .base import attr_const, float_const, function_body, if_branch, int_const
 from .reproject import bilinear_nodes, sampling_grid
 
 OUTPUTS = ("accumulated", "blend", "next_ta", "next_geometry")
@@ -270,12 +270,7 @@ def _per_tap_body(opset: int, hdr: bool) -> list[onnx.NodeProto]:
 
 def _branch(name: str, nodes: list[onnx.NodeProto]) -> onnx.GraphProto:
     """A subgraph of an If: `nodes` with the function's outputs renamed `<name>_<output>`."""
-    rename = {o: f"{name}_{o}" for o in OUTPUTS}
-    for node in nodes:
-        node.input[:] = [rename.get(i, i) for i in node.input]
-        node.output[:] = [rename.get(o, o) for o in node.output]
-    outputs = [helper.make_tensor_value_info(rename[o], TensorProto.FLOAT, None) for o in OUTPUTS]
-    return helper.make_graph(nodes, f"temporal_accumulation_{name}", [], outputs)
+    return if_branch(f"temporal_accumulation_{name}", name, nodes, OUTPUTS)
 
 
 @function_body("TemporalAccumulation")

@@ -7,14 +7,22 @@ import torch
 from .torch_op import torch_op
 
 
+def clamped_position(motion: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """For every pixel of (N, 2, H, W) motion: its previous position (px, py), each (N, H, W),
+    clamped to the image."""
+    _, _, h, w = motion.shape
+    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
+    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
+    return torch.clamp(xs + motion[:, 0], 0.0, w - 1.0), torch.clamp(
+        ys + motion[:, 1], 0.0, h - 1.0
+    )
+
+
 def bilinear_taps(motion: torch.Tensor) -> tuple[torch.Tensor, ...]:
     """For every pixel of (N, 2, H, W) motion: the flat indices of its four taps (N, H*W each,
     nw, ne, sw, se) in an H*W plane and the weights (wx, wy) of the clamped source position."""
     n, _, h, w = motion.shape
-    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
-    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
-    px = torch.clamp(xs + motion[:, 0], 0.0, w - 1.0)  # previous position, in the image
-    py = torch.clamp(ys + motion[:, 1], 0.0, h - 1.0)
+    px, py = clamped_position(motion)
     x0, y0 = torch.floor(px), torch.floor(py)
     wx, wy = px - x0, py - y0
     x0i, y0i = x0.long(), y0.long()
@@ -30,11 +38,8 @@ def nearest_tap(motion: torch.Tensor) -> torch.Tensor:
     """For every pixel of (N, 2, H, W) motion: the flat index (N, H*W) in an H*W plane of the
     pixel nearest to the clamped source position, floor(p + 0.5) on each axis."""
     n, _, h, w = motion.shape
-    xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
-    ys = torch.arange(h, device=motion.device, dtype=motion.dtype).view(1, h, 1)
-    px = torch.floor(torch.clamp(xs + motion[:, 0], 0.0, w - 1.0) + 0.5).long()
-    py = torch.floor(torch.clamp(ys + motion[:, 1], 0.0, h - 1.0) + 0.5).long()
-    return (py * w + px).reshape(n, h * w)
+    px, py = clamped_position(motion)
+    return (torch.floor(py + 0.5).long() * w + torch.floor(px + 0.5).long()).reshape(n, h * w)
 
 
 @torch_op("Reproject")

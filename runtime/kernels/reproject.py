@@ -68,13 +68,34 @@ def _gather_row(plane, out, nw, ne, sw, se, w_nw, w_ne, w_sw, w_se):
         )
 
 
+@njit(cache=True)
+def _nearest(motion_x, motion_y, y, h, index):
+    """Per pixel x of the row: the flat offset index[x] (into a plane of h * w) of the pixel
+    nearest to the clamped source position, floor(p + 0.5), in float32 as the torch form."""
+    w = motion_x.shape[0]
+    half = np.float32(0.5)
+    fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
+    for x in range(w):
+        px = _clamped(np.float32(x) + motion_x[x], fw1)
+        py = _clamped(np.float32(y) + motion_y[x], fh1)
+        index[x] = int(py + half) * w + int(px + half)  # floor: >= 0.5
+
+
 @njit(parallel=True, cache=True)  # no fastmath: numba compiles the callees with these flags
-def _reproject_nb(previous, motion, out):
+def _reproject_nb(previous, motion, out, nearest):
     n_img, n_ch, h, w = previous.shape
     planes = previous.reshape(n_img, n_ch, h * w)
     for row in prange(n_img * h):
         n = row // h
         y = row - n * h
+        if nearest:  # one offset per pixel, then a copy per channel
+            index = np.empty(w, np.int64)
+            _nearest(motion[n, 0, y], motion[n, 1, y], y, h, index)
+            for c in range(n_ch):
+                plane, dst = planes[n, c], out[n, c, y]
+                for x in range(w):
+                    dst[uintp(x)] = plane[uintp(index[x])]
+            continue
         taps = np.empty((4, w), np.int64)
         weights = np.empty((4, w), np.float32)
         _taps(motion[n, 0, y], motion[n, 1, y], y, h, taps, weights)
@@ -93,38 +114,7 @@ def _reproject_nb(previous, motion, out):
             )
 
 
-@njit(cache=True)
-def _nearest(motion_x, motion_y, y, h, index):
-    """Per pixel x of the row: the flat offset index[x] (into a plane of h * w) of the pixel
-    nearest to the clamped source position, floor(p + 0.5), in float32 as the torch form."""
-    w = motion_x.shape[0]
-    half = np.float32(0.5)
-    fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
-    for x in range(w):
-        px = _clamped(np.float32(x) + motion_x[x], fw1)
-        py = _clamped(np.float32(y) + motion_y[x], fh1)
-        index[x] = int(py + half) * w + int(px + half)  # floor: >= 0.5
-
-
-@njit(parallel=True, cache=True)
-def _reproject_nearest_nb(previous, motion, out):
-    n_img, n_ch, h, w = previous.shape
-    planes = previous.reshape(n_img, n_ch, h * w)
-    for row in prange(n_img * h):
-        n = row // h
-        y = row - n * h
-        index = np.empty(w, np.int64)
-        _nearest(motion[n, 0, y], motion[n, 1, y], y, h, index)
-        for c in range(n_ch):
-            plane, dst = planes[n, c], out[n, c, y]
-            for x in range(w):
-                dst[uintp(x)] = plane[uintp(index[x])]
-
-
 @fast_kernel("Reproject")
 def reproject(previous: np.ndarray, motion: np.ndarray, out: np.ndarray, nearest: int = 0) -> None:
     """previous (N, C, H, W), motion (N, 2, H, W) -> out (N, C, H, W), bilinear or nearest."""
-    if nearest:
-        _reproject_nearest_nb(previous, motion, out)
-    else:
-        _reproject_nb(previous, motion, out)
+    _reproject_nb(previous, motion, out, bool(nearest))
