@@ -21,7 +21,7 @@ from .ops.temporal_accumulation import temporal_accumulation
 from .temporal import TemporalConfig
 
 # AccumulatingConfig.reprojection -> the op's per_tap attribute (models.temporal)
-REPROJECTIONS = {"bilinear": 0, "per_tap": 1, "per_tap_hdr": 2}
+REPROJECTIONS = {"bilinear": 0, "per_tap": 1, "per_tap_hdr": 2, "per_tap_hdr2": 3}
 ACCUMULATION_INPUTS = ("color", "albedo", "normal", "depth", "motion")
 ACCUMULATION_STATE = (StateSpec("ta", 4, 1), StateSpec("geometry", 4, 1))
 ACCUMULATION_NOTE = (
@@ -44,7 +44,9 @@ class AccumulatingConfig(FamilyConfig):
     # pixel (a checkpoint saved before this field); "per_tap" tests each bilinear tap and
     # renormalises over the accepted ones (SVGF, BMFR); "per_tap_hdr" also weighs down a tap
     # brighter than 4x the darkest accepted one + 1 by its excess (after Karis14), so a small
-    # bright light does not bleed into its dark neighbours through the history.
+    # bright light does not bleed into its dark neighbours through the history;
+    # "per_tap_hdr2" divides by the square of 1 + the excess (a light's trail falls as 1 / its
+    # brightness instead of staying about one unit).
     reprojection: str = "bilinear"
 
     def temporal(self) -> TemporalConfig:

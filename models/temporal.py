@@ -18,7 +18,7 @@ with weight a = max(a_min, 1 / (history + 1)) so that the first frames average u
 later frames converge to an exponential moving average with weight a_min (0.2 = Meng20's
 history weight 0.8).
 
-Three reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
+Four reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
 - 0, bilinear (`temporal_step`'s default; the models exported before per_tap): the whole
   previous state (accumulation, depth, normal) is warped bilinearly first and the
   *interpolated* depth and normal are tested, once per pixel. A deviation from SVGF and BMFR:
@@ -31,7 +31,7 @@ Three reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
   where no tap passes). Tap order, weights and the inside test follow crossreg's
   `models.reprojection.svgf_reproject`; the tests are TA's own (no fwidth, no 3 x 3 fallback,
   no erosion). docs/families/afn.md, wskp.md and nbg.md say which demo uses which;
-- 2, per tap HDR-weighted (`per_tap_history(..., hdr=True)`, after Karis14, "High quality
+- 2, per tap HDR-weighted (`per_tap_history(..., hdr=1)`, after Karis14, "High quality
   temporal supersampling", whose TAA resolve weighs each sample by 1 / (1 + luma)): the taps
   and tests of 1; in the average each accepted tap's weight is divided by 1 + its brightness
   above a bound, HDR_RATIO (4) x the darkest accepted tap's brightness + HDR_FLOOR (1)
@@ -42,7 +42,14 @@ Three reprojections, `TemporalConfig.per_tap` (the op's attribute per_tap):
   down by its excess. Measured on TA alone (benchmarks/history_bleed.py): at the committed
   sequence's strip the dark neighbours' history is 7-19 over frames 1-7 with per_tap 1 (the
   reference under 0.1), 0.3-3.6 with 2; Karis14's plain 1 / (1 + brightness) did as well
-  there but darkened the validation sequences' history by 1-3.6 % (their 1-spp noise).
+  there but darkened the validation sequences' history by 1-3.6 % (their 1-spp noise);
+- 3, per tap HDR-weighted, squared (`per_tap_history(..., hdr=2)`): 2 with the weight divided
+  by the square of 1 + the excess. Under 2 a bright tap's share of the average, w l / (1 + l -
+  bound), tends to w as l grows: about one unit per sub-pixel warp still reaches a dark
+  neighbour, and the model downstream sees the accumulated trail (nbg's strip failures,
+  benchmarks/README.md "Where the strip's trail comes from"); under 3 it falls as 1 / l. TA alone
+  on the committed strip: dark neighbours at most 0.75 over frames 0-7 against 0.3-3.6 with 2,
+  the validation sequences' history within 1 % of 2's brightness.
 """
 
 from __future__ import annotations
@@ -66,7 +73,7 @@ class TemporalConfig:
     min_alpha: float = 0.2  # a_min: weight of the current frame in the moving average
     max_history: float = 64.0  # history length is clamped (keeps the state bounded)
     per_tap: int = 0  # 0: test the bilinearly warped geometry; 1: test each tap (SVGF); 2: 1,
-    # outlier-bright taps weighed down (module docstring)
+    # outlier-bright taps weighed down; 3: by the square (module docstring)
 
 
 def in_bounds(motion: torch.Tensor) -> torch.Tensor:
@@ -163,16 +170,17 @@ def per_tap_history(
     geometry_state: torch.Tensor,
     reset: torch.Tensor,
     config: TemporalConfig = TemporalConfig(),
-    hdr: bool = False,
+    hdr: int = 0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """SVGF's per-tap reprojection of `ta_state` (N, C + 1, H, W): (warped ta_state, valid
     (N, 1, H, W) in {0, 1}). Each bilinear tap around current + motion passes if it lies in
     the previous frame and its depth and normal agree with the current pixel's (the tests of
     `history_validity`); the accepted taps' bilinear weights are renormalised; valid where
     they sum to at least 0.01 and reset is 0. A rejected tap's value is selected away, never
-    multiplied by 0; where invalid the warped state is 0. hdr (per_tap 2, module docstring):
-    the accepted taps are averaged with weights w / (1 + max(brightness - bound, 0)), the
-    bound from the darkest accepted tap (`outlier_bound`); the cut on the plain w."""
+    multiplied by 0; where invalid the warped state is 0. hdr 1 or 2 (per_tap 2 or 3, module
+    docstring): the accepted taps are averaged with weights w / (1 + max(brightness - bound,
+    0))^hdr (the square a product), the bound from the darkest accepted tap
+    (`outlier_bound`); the cut on the plain w."""
     n, c1, h, w = ta_state.shape
     flat = torch.cat((ta_state, geometry_state), dim=1).flatten(2)
     xs = torch.arange(w, device=motion.device, dtype=motion.dtype).view(1, 1, w)
@@ -200,7 +208,10 @@ def per_tap_history(
         if hdr:  # weighed down by the brightness above the bound (selected: a rejected tap's
             # value, maybe non-finite, never enters)
             excess = torch.clamp(brightness[t] - bound, min=0.0)
-            average_weight = torch.where(ok, weight / (1.0 + excess), torch.zeros_like(weight))
+            scale = 1.0 + excess
+            if hdr == 2:
+                scale = scale * scale
+            average_weight = torch.where(ok, weight / scale, torch.zeros_like(weight))
         acc = acc + average_weight * torch.where(ok, g[:, :c1], torch.zeros_like(g[:, :c1]))
         total = total + weight
         weighed = weighed + average_weight
@@ -229,12 +240,13 @@ def temporal_step(
     Returns (accumulated (N, C, H, W), blend weight a (N, 1, H, W), next ta_state,
     next geometry_state). config.per_tap (a Python int) picks the reprojection (module
     docstring): 0 warps the whole state and tests it once per pixel, 1 tests each tap, 2 tests
-    each tap and weighs the accepted ones by brightness.
+    each tap and weighs the accepted ones by brightness, 3 by its square.
     """
     c = current.shape[1]
     if config.per_tap:
+        hdr = max(config.per_tap - 1, 0)  # per_tap 2, 3: the HDR weight's power
         warped, valid = per_tap_history(
-            motion, depth, normal, ta_state, geometry_state, reset, config, config.per_tap == 2
+            motion, depth, normal, ta_state, geometry_state, reset, config, hdr
         )
     else:
         warped = reproject(torch.cat((ta_state, geometry_state), dim=1), motion)

@@ -40,6 +40,12 @@ frame, while taps within the bound (noise, texture) average as for per_tap = 1:
     [history, history_len] = sum_{ok_t} v_t ta_state[t] / sum_{ok_t} v_t
     valid = total >= 0.01 as for per_tap = 1 (the plain w_t: the same pixels keep history)
 
+per_tap = 3 (per tap, HDR-weighted, squared): per_tap = 2 with v_t = w_t / (1 + max(l_t -
+bound, 0))^2 (the square a product, not a power). Under 2 an outlier tap's share of the sum,
+v_t l_t, tends to w_t as l_t grows: a light's tap still puts up to about one unit into its dark
+neighbour at every sub-pixel warp, and that accumulates over the frames; under 3 it falls as
+1 / l_t.
+
 The brightness is read in the units the values come in (demodulated radiance for the
 accumulating families, where 1 is a white surface under unit light). Then, for every per_tap:
 
@@ -64,14 +70,16 @@ from .spec import Arg, OpSpec, example_geometry, same_nhw
 
 IMAGES = ("current", "motion", "depth", "normal", "ta_state", "geometry_state")
 SCALARS = ("reset", "depth_tolerance", "normal_threshold", "min_alpha", "max_history")
-PER_TAP = (0, 1, 2)  # bilinear, per tap, per tap HDR-weighted
-HDR_RATIO = 4.0  # per_tap 2: a tap brighter than HDR_RATIO x the darkest accepted one
+PER_TAP = (0, 1, 2, 3)  # bilinear, per tap, per tap HDR-weighted (plain, squared)
+HDR_RATIO = 4.0  # per_tap 2, 3: a tap brighter than HDR_RATIO x the darkest accepted one
 HDR_FLOOR = 1.0  # + HDR_FLOOR (a white surface under unit light) is an outlier
 
 
 def _check(shapes, attrs) -> None:
     if attrs["per_tap"] not in PER_TAP:
-        raise ValueError(f"TemporalAccumulation: per_tap is {attrs['per_tap']}; expected 0, 1 or 2")
+        raise ValueError(
+            f"TemporalAccumulation: per_tap is {attrs['per_tap']}; expected 0, 1, 2 or 3"
+        )
     same_nhw("TemporalAccumulation", shapes[: len(IMAGES)], IMAGES)
     c = shapes[0][1]
     expected = {"motion": 2, "depth": 1, "normal": 3, "ta_state": c + 1, "geometry_state": 4}
@@ -121,12 +129,13 @@ SPEC = OpSpec(
     "history length) where the history Reproject-ed by motion is in bounds and agrees in depth "
     "and normal (per_tap=1: each bilinear tap tested, weights renormalised over the accepted "
     "ones, SVGF; per_tap=2: each tap's weight divided by 1 + its brightness above 4x the "
-    "darkest tap's + 1), else current; outputs accumulated, a, next TA state, next geometry",
+    "darkest tap's + 1; per_tap=3: by its square), else current; outputs accumulated, a, "
+    "next TA state, next geometry",
     inputs=(*(Arg(name) for name in IMAGES), *(Arg(name, 0) for name in SCALARS)),
     outputs=(Arg("accumulated"), Arg("blend"), Arg("next_ta"), Arg("next_geometry")),
     attrs=("per_tap",),
     default_attrs={"per_tap": 0},
-    example_attrs=({"per_tap": 0}, {"per_tap": 1}, {"per_tap": 2}),
+    example_attrs=({"per_tap": 0}, {"per_tap": 1}, {"per_tap": 2}, {"per_tap": 3}),
     optional_attrs={"per_tap": 0},  # models exported before per_tap existed
     output_shapes=_output_shapes,
     check=_check,

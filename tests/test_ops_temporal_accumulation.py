@@ -1,10 +1,10 @@
 """TemporalAccumulation: every form gives all four outputs of the torch form (models.temporal),
-the fast kernel to the bit, with every reprojection (per_tap 0, 1 and 2); per_tap=1 and 2 in
+the fast kernel to the bit, with every reprojection (per_tap 0 to 3); per_tap=1, 2 and 3 in
 every form match an independent numpy spelling of SVGF's per-tap test (Schied17 s.4.1; 2 with
-a tap brighter than 4x the darkest + 1 weighed down by its excess) on a disocclusion edge, all
-taps rejected, taps off-screen and reset; per_tap=2 keeps a bright line out of its dark
-neighbours and equals per_tap=1 where no tap is an outlier; a node without per_tap (a model
-exported before it) runs the bilinear scheme on every path."""
+a tap brighter than 4x the darkest + 1 weighed down by its excess, 3 by its square) on a
+disocclusion edge, all taps rejected, taps off-screen and reset; per_tap=2 keeps a bright line
+out of its dark neighbours, 3 further, and both equal per_tap=1 where no tap is an outlier; a
+node without per_tap (a model exported before it) runs the bilinear scheme on every path."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ def _inputs(shape: tuple[int, int, int, int], seed: int, reset: float = 0.0) -> 
 
 @pytest.mark.parametrize("shape", [(1, 3, 13, 17), (2, 1, 8, 6), (1, 3, 32, 48)])
 @pytest.mark.parametrize("reset", [0.0, 1.0])
-@pytest.mark.parametrize("per_tap", [0, 1, 2])
+@pytest.mark.parametrize("per_tap", [0, 1, 2, 3])
 def test_every_form_gives_every_output(shape, reset, per_tap) -> None:
     inputs = _inputs(shape, sum(shape), reset)
     with torch.no_grad():
@@ -57,7 +57,7 @@ def test_every_form_gives_every_output(shape, reset, per_tap) -> None:
                 np.testing.assert_array_equal(got, want, err_msg=form)
 
 
-@pytest.mark.parametrize("per_tap", [0, 1, 2])
+@pytest.mark.parametrize("per_tap", [0, 1, 2, 3])
 def test_nonfinite_history_is_dropped_where_invalid(per_tap) -> None:
     """An invalid history is selected away, never multiplied by 0: a NaN history leaves the
     pixels that reject it finite (where it is valid it is used, as in the torch form; the
@@ -80,7 +80,7 @@ def test_nonfinite_history_is_dropped_where_invalid(per_tap) -> None:
 
 
 def svgf_per_tap_numpy(
-    inputs: list[np.ndarray], hdr: bool = False
+    inputs: list[np.ndarray], hdr: int = 0
 ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     """SVGF's reprojection (Schied17 s.4.1) with TemporalAccumulation's tests, written from the
     description, pixel by pixel in float64: the four pixels around the previous position
@@ -89,9 +89,10 @@ def svgf_per_tap_numpy(
     with the current normal exceeds normal_threshold; the history (colour and length) is the
     bilinear average over the counted taps, their weights renormalised, and is dropped where
     the counted taps weigh under 0.01 (no tap counts, in particular) or reset is 1. Then
-    alpha = max(1 / (n + 1), min_alpha). hdr (per_tap 2): the average weighs each counted tap
-    by weight / (1 + its brightness above 4 x the darkest counted tap's + 1), brightness the
-    mean of its C history colours (at least 0); the 0.01 cut keeps the plain weights.
+    alpha = max(1 / (n + 1), min_alpha). hdr 1 (per_tap 2): the average weighs each counted
+    tap by weight / (1 + its brightness above 4 x the darkest counted tap's + 1), brightness
+    the mean of its C history colours (at least 0); hdr 2 (per_tap 3): by weight / (1 + that)
+    squared; the 0.01 cut keeps the plain weights.
     Returns the four outputs, the number of counted taps per pixel among those of nonzero
     weight (N, H, W) and where the history was kept."""
     current, motion, depth, normal, ta, geo = (x.astype(np.float64) for x in inputs[:6])
@@ -129,8 +130,7 @@ def svgf_per_tap_numpy(
                 bound = 4.0 * min(bright, default=0.0) + 1.0
                 weighed, history = 0.0, np.zeros(c + 1)
                 for (weight, value), b in zip(counted_taps, bright, strict=True):
-                    if hdr:
-                        weight /= 1.0 + max(b - bound, 0.0)
+                    weight /= (1.0 + max(b - bound, 0.0)) ** hdr
                     weighed += weight
                     history += weight * value
                 kept[n, y, x] = reset == 0.0 and total >= 0.01
@@ -241,10 +241,10 @@ PER_TAP_CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(PER_TAP_CASES))
-@pytest.mark.parametrize("per_tap", [1, 2])
+@pytest.mark.parametrize("per_tap", [1, 2, 3])
 def test_per_tap_every_form_matches_an_independent_svgf_spelling(case, per_tap) -> None:
     inputs = PER_TAP_CASES[case]()
-    expected, counted, kept = svgf_per_tap_numpy(inputs, hdr=per_tap == 2)
+    expected, counted, kept = svgf_per_tap_numpy(inputs, hdr=per_tap - 1)
     forms = _every_form(inputs, per_tap=per_tap)
     assert "portable" in forms and "native" in forms and "numba" in forms
     for form, outs in forms.items():
@@ -299,10 +299,12 @@ def _bright_line(motion: float) -> list[np.ndarray]:
 def test_per_tap_hdr_keeps_a_bright_line_out_of_its_dark_neighbours(motion) -> None:
     """A sub-pixel warp of a one-pixel line: per_tap=1 moves a share of the line's 50 into the
     pixel beside it (its bilinear weight: 12.5 to 25); per_tap=2 weighs the bright tap down by
-    its excess over 4 x 0.02 + 1 (1 / 49.9) and keeps it under 1.1 there, as every form does;
-    far from the line the two agree to the bit."""
+    its excess over 4 x 0.02 + 1 (1 / 49.9) and keeps it under 1.1 there, per_tap=3 by the
+    square (1 / 2492) under 0.1, as every form does; far from the line all three agree to the
+    bit."""
     inputs = _bright_line(motion)
     plain, hdr = _every_form(inputs, per_tap=1), _every_form(inputs, per_tap=2)
+    hdr2 = _every_form(inputs, per_tap=3)
     neighbour = 11 if motion > 0 else 13  # the pixel whose taps reach the line
     for form in plain:
         history = (1 - 0.2) * 1.0  # (1 - alpha) at history length 8: alpha = max(1/9, 0.2)
@@ -311,23 +313,27 @@ def test_per_tap_hdr_keeps_a_bright_line_out_of_its_dark_neighbours(motion) -> N
                                    rtol=1e-5, err_msg=form)  # fmt: skip
         kept = hdr[form][0][0, 0, :, neighbour] - 0.2 * inputs[0][0, 0, :, neighbour]
         assert (kept / history < 1.1).all() and (kept / history > 0.02).all(), form
+        kept2 = hdr2[form][0][0, 0, :, neighbour] - 0.2 * inputs[0][0, 0, :, neighbour]
+        assert (kept2 / history < 0.1).all() and (kept2 / history > 0.02).all(), form
         far = np.r_[0:9, 16:31]  # columns whose taps all read 0.02
-        for got, want in zip(hdr[form], plain[form], strict=True):
-            np.testing.assert_array_equal(got[..., far], want[..., far], err_msg=form)
+        for weighted in (hdr, hdr2):
+            for got, want in zip(weighted[form], plain[form], strict=True):
+                np.testing.assert_array_equal(got[..., far], want[..., far], err_msg=form)
 
 
+@pytest.mark.parametrize("per_tap", [2, 3])
 @pytest.mark.parametrize("scale", [1.0, 3.0])
-def test_per_tap_hdr_is_the_plain_average_where_no_tap_is_an_outlier(scale) -> None:
+def test_per_tap_hdr_is_the_plain_average_where_no_tap_is_an_outlier(scale, per_tap) -> None:
     """A checkerboard history (0.1 and 1, times 1 to 1.2 per pixel; lengths 1 to 80, taps
     off-screen): no tap brighter than 4 x the darkest + 1 (at most 1.2 against 1.4), so
-    per_tap=2 weighs nothing down and gives per_tap=1's outputs to the bit; three times as
-    bright (3.6 against 2.2) the bright squares are outliers and it differs."""
+    per_tap=2 (and 3) weighs nothing down and gives per_tap=1's outputs to the bit; three times
+    as bright (3.6 against 2.2) the bright squares are outliers and it differs."""
     inputs = _off_screen()
     ys, xs = np.mgrid[0:16, 0:16]
     checker = np.where((xs + ys) % 2 == 1, 1.0, 0.1) * (1.0 + 0.2 * inputs[4][0, 0])
     inputs[4] = inputs[4].copy()
     inputs[4][:, :3] = (scale * checker).astype(np.float32)
-    plain, hdr = _every_form(inputs, per_tap=1), _every_form(inputs, per_tap=2)
+    plain, hdr = _every_form(inputs, per_tap=1), _every_form(inputs, per_tap=per_tap)
     for form in plain:
         same = all(np.array_equal(a, b) for a, b in zip(hdr[form], plain[form], strict=True))
         assert same == (scale == 1.0), form
@@ -336,11 +342,11 @@ def test_per_tap_hdr_is_the_plain_average_where_no_tap_is_an_outlier(scale) -> N
         assert 0 < dropped.mean() < 1, form
 
 
-def test_per_tap_must_be_0_1_or_2() -> None:
+def test_per_tap_must_be_0_to_3() -> None:
     """(A node without per_tap runs bilinear on every path: test_op_specs.py's
     test_a_node_without_its_optional_attributes_runs_as_before.)"""
-    with pytest.raises(ValueError, match="per_tap is 3"):
-        KERNELS[OP](*_disocclusion(), per_tap=3)
+    with pytest.raises(ValueError, match="per_tap is 4; expected 0, 1, 2 or 3"):
+        KERNELS[OP](*_disocclusion(), per_tap=4)
 
 
 def test_shipped_demo_runs_on_the_extensions_bridge_with_per_tap_written_out() -> None:

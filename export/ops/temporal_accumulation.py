@@ -6,11 +6,11 @@ the If gives the function's outputs), so a model runs only the reprojection it a
   positions give the in-bounds test too), then the validity test, the selection and the blend
   of `models.temporal.temporal_step`, node for node in the torch form's order (names of this
   part start with `ta_`; Reproject's are its own);
-- per_tap = 1 or 2 (an inner If on per_tap == 2 picks one of two bodies):
+- per_tap = 1, 2 or 3 (an inner If on per_tap >= 2 picks one of two bodies):
   `models.temporal.per_tap_history` (names start with `tp_`): the four taps' positions and
   bilinear weights, per tap one GatherElements of the (N, C + 5, H*W) state and its inside /
-  depth / normal tests (2: and its HDR averaging weight), the renormalisation, then the same
-  blend.
+  depth / normal tests (2 and 3: and its HDR averaging weight, whose divisor 3 squares by a
+  select on per_tap == 3), the renormalisation, then the same blend.
 """
 
 from __future__ import annotations
@@ -141,13 +141,15 @@ def _outlier_bound() -> list[onnx.NodeProto]:
 
 
 def _hdr_weight(p: str, weight: str) -> list[onnx.NodeProto]:
-    """{p}_aw: the accepted tap's weight / (1 + max(brightness - tp_bound, 0)), 0 where the
-    tap is rejected."""
+    """{p}_aw: the accepted tap's weight / (1 + max(brightness - tp_bound, 0)), squared where
+    ta_squared (per_tap 3), 0 where the tap is rejected."""
     mk = helper.make_node
     return [
         mk("Sub", [f"{p}_bright", "tp_bound"], [f"{p}_above"]),
         mk("Max", [f"{p}_above", "f0"], [f"{p}_excess"]),
-        mk("Add", ["f1", f"{p}_excess"], [f"{p}_scale"]),
+        mk("Add", ["f1", f"{p}_excess"], [f"{p}_scale1"]),
+        mk("Mul", [f"{p}_scale1", f"{p}_scale1"], [f"{p}_scale2"]),
+        mk("Where", ["ta_squared", f"{p}_scale2", f"{p}_scale1"], [f"{p}_scale"]),
         mk("Div", [weight, f"{p}_scale"], [f"{p}_average"]),
         mk("Where", [f"{p}_ok", f"{p}_average", "f0"], [f"{p}_aw"]),
     ]
@@ -196,7 +198,7 @@ def _tap_tests(p: str, fx: str, fy: str, weight: str) -> list[onnx.NodeProto]:
 
 
 def _per_tap_body(opset: int, hdr: bool) -> list[onnx.NodeProto]:
-    """per_tap = 1 (hdr False) or 2: models.temporal.per_tap_history, then the blend."""
+    """per_tap = 1 (hdr False) or 2 and 3: models.temporal.per_tap_history, then the blend."""
     mk = helper.make_node
     base = [
         mk("Concat", ["ta_state", "geometry_state"], ["previous"], axis=1),
@@ -275,8 +277,8 @@ def _branch(name: str, nodes: list[onnx.NodeProto]) -> onnx.GraphProto:
 
 @function_body("TemporalAccumulation")
 def temporal_accumulation_body(opset: int) -> list[onnx.NodeProto]:
-    """rtdenoise.TemporalAccumulation in standard ops: If(per_tap) [If(per_tap == 2) per tap
-    HDR-weighted, else per tap], else bilinear."""
+    """rtdenoise.TemporalAccumulation in standard ops: If(per_tap) [If(per_tap >= 2) per tap
+    HDR-weighted (squared where per_tap == 3), else per tap], else bilinear."""
     mk = helper.make_node
     choose_weighting = mk(  # inside the per_tap branch, which renames its outputs
         "If",
@@ -288,8 +290,10 @@ def temporal_accumulation_body(opset: int) -> list[onnx.NodeProto]:
     return [
         attr_const("ta_per_tap", "per_tap"),
         mk("Cast", ["ta_per_tap"], ["ta_per_tap_b"], to=TensorProto.BOOL),
-        int_const("ta_two", 2),
-        mk("Equal", ["ta_per_tap", "ta_two"], ["ta_hdr"]),
+        int_const("ta_one", 1),
+        int_const("ta_three", 3),
+        mk("Greater", ["ta_per_tap", "ta_one"], ["ta_hdr"]),
+        mk("Equal", ["ta_per_tap", "ta_three"], ["ta_squared"]),
         mk(
             "If",
             ["ta_per_tap_b"],

@@ -170,7 +170,10 @@ def _temporal_accumulation_per_tap_nb(
                 if hdr:
                     excess = bright[k] - bound
                     excess = zero if excess < zero else excess
-                    average_weight = weight / (one + excess)
+                    scale = one + excess
+                    if hdr == 2:  # per_tap 3: the square, a product as in the torch form
+                        scale = scale * scale
+                    average_weight = weight / scale
                 for c in range(n_ch + 1):
                     acc[c] = acc[c] + average_weight * ta_planes[n, c, i]
                 total = total + weight
@@ -213,7 +216,7 @@ def temporal_accumulation(
 ) -> None:
     """current (N, C, H, W), motion, depth, normal, ta_state (N, C + 1, H, W), geometry_state
     (N, 4, H, W) and five scalars -> accumulated, blend, next_ta, next_geometry; per_tap picks
-    the reprojection (0 bilinear, 1 per tap, 2 per tap HDR-weighted)."""
+    the reprojection (0 bilinear, 1 per tap, 2 per tap HDR-weighted, 3 by the square)."""
     f32 = np.float32
     args = (
         current, motion, depth, normal, ta_state, geometry_state,
@@ -221,6 +224,6 @@ def temporal_accumulation(
         f32(max_history), accumulated, blend, next_ta, next_geometry,
     )  # fmt: skip
     if per_tap:
-        _temporal_accumulation_per_tap_nb(*args, per_tap == 2)
+        _temporal_accumulation_per_tap_nb(*args, max(per_tap - 1, 0))
     else:
         _temporal_accumulation_nb(*args)

@@ -292,9 +292,9 @@ void reproject_run(const Tensor *in, Tensor *out, const int64_t *attrs, int thre
 std::string temporal_accumulation_shapes(const Tensor *in, const int64_t *attrs, Shape *out) {
     static const char *names[] = {"current", "motion", "depth", "normal", "ta_state",
                                   "geometry_state"};
-    if (attrs[0] < 0 || attrs[0] > 2)
+    if (attrs[0] < 0 || attrs[0] > 3)
         return "TemporalAccumulation: per_tap is " + std::to_string(attrs[0]) +
-               "; expected 0, 1 or 2";
+               "; expected 0, 1, 2 or 3";
     std::string e = same_nhw("TemporalAccumulation", in, names, 6);
     if (!e.empty()) return e;
     const int64_t n = in[0].dims[0], c = in[0].dims[1], h = in[0].dims[2], w = in[0].dims[3];
@@ -405,12 +405,12 @@ RTD_CLONES void temporal_accumulation_rows(const TaArgs &a, int64_t begin, int64
 /* per_tap = 1 (kernels/temporal_accumulation.py _temporal_accumulation_per_tap_nb): one pixel
  * at a time, its four taps (nw, ne, sw, se) tested and their weights and states summed in the
  * torch form's order, a rejected tap adding nothing; then the renormalisation and the blend.
- * hdr (per_tap = 2): each accepted tap's averaging weight is divided by 1 + its brightness
+ * hdr 1 (per_tap = 2): each accepted tap's averaging weight is divided by 1 + its brightness
  * (channel mean, summed in channel order, at least 0) above kHdrRatio x the darkest accepted
  * tap's + kHdrFloor (ops/temporal_accumulation.py HDR_RATIO, HDR_FLOOR), the 0.01 cut on the
- * plain weights. */
+ * plain weights; hdr 2 (per_tap = 3): by the square of that, a product. */
 constexpr float kHdrRatio = 4.0f, kHdrFloor = 1.0f;
-RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, bool hdr, int64_t begin,
+RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, int hdr, int64_t begin,
                                                    int64_t end) {
     const int64_t n_ch = a.n_ch, h = a.h, w = a.w, hw = h * w;
     const float zero = 0.0f, one = 1.0f, half = 0.5f, cut = 0.01f;
@@ -470,7 +470,9 @@ RTD_CLONES void temporal_accumulation_per_tap_rows(const TaArgs &a, bool hdr, in
                 const float bound = kHdrRatio * darkest + kHdrFloor;
                 for (int t = 0; t < 4; ++t) {
                     const float excess = bright[t] - bound;
-                    av[t] = wt[t] / (one + (excess < zero ? zero : excess));
+                    float scale = one + (excess < zero ? zero : excess);
+                    if (hdr == 2) scale = scale * scale;
+                    av[t] = wt[t] / scale;
                 }
             }
             float total = zero, weighed = zero;  // the cut's weight; the averaging weight
@@ -511,7 +513,7 @@ void temporal_accumulation_run(const Tensor *in, Tensor *out, const int64_t *att
              out[0].data, out[1].data, out[2].data, out[3].data,
              in[0].dims[1], in[0].dims[2], in[0].dims[3]};
     const int64_t work = 4 * (in[4].size() + in[5].size()) + 16 * in[2].size();
-    const bool hdr = attrs[0] == 2;
+    const int hdr = attrs[0] > 1 ? static_cast<int>(attrs[0] - 1) : 0;
     if (attrs[0])  // per_tap
         parallel_for(in[0].dims[0] * a.h, threads, work, [&](int64_t b, int64_t e) {
             temporal_accumulation_per_tap_rows(a, hdr, b, e);
