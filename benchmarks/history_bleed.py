@@ -1,11 +1,12 @@
 """How much a small light's history bleeds into its dark neighbours, per TA reprojection.
 
 Runs TemporalAccumulation alone (no network: its torch form, models.temporal) over a sequence
-with the reprojections per_tap 1 (SVGF) and 2 (per tap, outlier-bright taps weighed down), the
-colour demodulated by albedo + 0.01 as the accumulating families do, and reports per frame the
-largest remodulated accumulated value at pixels whose reference is dark (channel mean < 0.1),
-then over frames 4 on: relMSE, mean |T(out) - T(ref)| with T(x) = x / (1 + x), and the mean
-brightness of the accumulation over the reference's (the bias of the weighting).
+with the reprojections per_tap 1 (SVGF), 2 (per tap, outlier-bright taps weighed down) and 3
+(weighed down by the square), the colour demodulated by albedo + 0.01 as the accumulating
+families do, and reports per frame the largest remodulated accumulated value at pixels whose
+reference is dark (channel mean < 0.1), then over frames 4 on: relMSE, mean |T(out) - T(ref)|
+with T(x) = x / (1 + x), and the mean brightness of the accumulation over the reference's (the
+bias of the weighting).
 
     python benchmarks/history_bleed.py rtdenoise/assets/sequences/seq_000 validation/seq_00*
 """
@@ -60,7 +61,7 @@ def accumulate(folder: str, per_tap: int) -> tuple[list[float], float, float, fl
 def main(folders: list[str]) -> None:
     with torch.no_grad():
         for folder in folders:
-            for per_tap in (1, 2):
+            for per_tap in (1, 2, 3):
                 dark, rel, l1, ratio = accumulate(folder, per_tap)
                 print(
                     f"{folder:40s} per_tap {per_tap}: dark max "

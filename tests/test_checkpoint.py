@@ -154,6 +154,7 @@ def test_reprojection_round_trips_and_bad_values_are_refused(tmp_path):
     assert hdr.cfg.temporal().per_tap == 2
     loaded, _ = load_checkpoint(save_checkpoint(tmp_path / "hdr.pt", hdr, {}))
     assert loaded.cfg.temporal().per_tap == 2
-    match = "reprojection must be one of 'bilinear', 'per_tap', 'per_tap_hdr'"
+    assert build_model("nbg", {"reprojection": "per_tap_hdr2"}).cfg.temporal().per_tap == 3
+    match = "reprojection must be one of 'bilinear', 'per_tap', 'per_tap_hdr', 'per_tap_hdr2'"
     with pytest.raises(ValueError, match=match):
         build_model("wskp", {"reprojection": "nearest"})

@@ -138,16 +138,17 @@ def test_write_atomic_leaves_nothing_on_failure(tmp_path, monkeypatch):
         ("afn", "per_tap", "bilinear"),
         ("afn", "per_tap_hdr", "per_tap"),
         ("nbg", "per_tap_hdr", "per_tap"),
+        ("nbg", "per_tap_hdr2", "per_tap_hdr"),
     ],
 )
 def test_per_tap_reprojection_exports_and_matches_ort_over_eight_frames(
     family, reprojection, other
 ):
-    """An accumulating family with reprojection="per_tap" or "per_tap_hdr" (small random-init
-    weights) exports TemporalAccumulation with per_tap=1 or 2 and ORT, fast kernels and
-    portable bodies, follows PyTorch over the committed 64 x 64 sequence (fractional motion,
-    silhouettes, a small bright light) with state fed back; the same weights with the `other`
-    scheme give another image."""
+    """An accumulating family with reprojection="per_tap", "per_tap_hdr" or "per_tap_hdr2"
+    (small random-init weights) exports TemporalAccumulation with per_tap=1, 2 or 3 and ORT,
+    fast kernels and portable bodies, follows PyTorch over the committed 64 x 64 sequence
+    (fractional motion, silhouettes, a small bright light) with state fed back; the same
+    weights with the `other` scheme give another image."""
     from rtdenoise.models.data import load_sequence
     from rtdenoise.models.registry import build_model, family_class
     from rtdenoise.shipped import sample_sequences
@@ -158,7 +159,7 @@ def test_per_tap_reprojection_exports_and_matches_ort_over_eight_frames(
     assert model.config()["reprojection"] == reprojection
     proto = export_model(model)
     ta = [n for n in proto.graph.node if n.op_type == "TemporalAccumulation"]
-    per_tap = {"per_tap": 1, "per_tap_hdr": 2}[reprojection]
+    per_tap = {"per_tap": 1, "per_tap_hdr": 2, "per_tap_hdr2": 3}[reprojection]
     assert [{a.name: a.i for a in n.attribute} for n in ta] == [{"per_tap": per_tap}]
     seq = load_sequence(sample_sequences()[0], model.inputs)
     frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
