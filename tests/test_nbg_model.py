@@ -243,11 +243,11 @@ def test_middle_layers_deepen_guidenet_and_export():
     assert parameter_count(m) == plain + 2 * (9 * 6 * 6 + 6)
     assert [c.kernel_size for c in m.guide_net.middle] == [(3, 3), (3, 3)]
     x = torch.rand(1, 10, 12, 14)
-    guides = m.guide_net(x)
     with torch.no_grad():
+        guides = m.guide_net(x)
         m.guide_net.middle[1].weight.zero_()
         m.guide_net.middle[1].bias.fill_(0.5)  # the second middle conv outputs a constant
-    flat = m.guide_net(x)
+        flat = m.guide_net(x)
     assert float((guides - flat).abs().max()) > 1e-3
     inner = flat[:, :, 2:-2, 2:-2]  # (conv2's zero padding shapes the 2-pixel border)
     assert float(inner.std(dim=(2, 3)).max()) < 1e-6  # nothing of x reaches conv2 any more
