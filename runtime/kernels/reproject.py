@@ -30,16 +30,23 @@ def _clamped(v, last):
 
 
 @njit(cache=True)
+def _source(motion_x, motion_y, x, y, h):
+    """Pixel x of row y (of a w = len(motion_x) by h image): its previous position (px, py),
+    float32, clamped to the image (the torch form's `clamped_position`)."""
+    px = _clamped(np.float32(x) + motion_x[x], np.float32(motion_x.shape[0] - 1))
+    py = _clamped(np.float32(y) + motion_y[x], np.float32(h - 1))
+    return px, py
+
+
+@njit(cache=True)
 def _taps(motion_x, motion_y, y, h, taps, weights):
     """Per pixel x of the row: the clamped source position -> the flat offsets of its four
     bilinear taps, taps[k, x] (k: nw, ne, sw, se, into a plane of h * w), and their weights
     weights[k, x], in float32 as the torch form computes them."""
     w = motion_x.shape[0]
     one = np.float32(1.0)
-    fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
     for x in range(w):
-        px = _clamped(np.float32(x) + motion_x[x], fw1)
-        py = _clamped(np.float32(y) + motion_y[x], fh1)
+        px, py = _source(motion_x, motion_y, x, y, h)
         cx = int(px)  # floor: px >= 0
         cy = int(py)
         x1 = min(cx + 1, w - 1)
@@ -74,10 +81,8 @@ def _nearest(motion_x, motion_y, y, h, index):
     nearest to the clamped source position, floor(p + 0.5), in float32 as the torch form."""
     w = motion_x.shape[0]
     half = np.float32(0.5)
-    fw1, fh1 = np.float32(w - 1), np.float32(h - 1)
     for x in range(w):
-        px = _clamped(np.float32(x) + motion_x[x], fw1)
-        py = _clamped(np.float32(y) + motion_y[x], fh1)
+        px, py = _source(motion_x, motion_y, x, y, h)
         index[x] = int(py + half) * w + int(px + half)  # floor: >= 0.5
 
 
