@@ -265,3 +265,45 @@ def test_middle_layers_deepen_guidenet_and_export():
     report = validate(model, data, frames, tolerance=1e-4)
     assert report.passed, report.errors
     assert set(report.errors) == {"ort_fast", "ort_portable"}
+
+
+def test_pointwise_guide_is_a_per_pixel_path_and_exports():
+    """`pointwise_guide`: a 1 x 1 conv from GuideNet's input added before the sigmoid, zero at
+    init (the same guides as without it, under one seed); with the k x k path made constant the
+    guides are sigmoid(b + W x) pixel by pixel; an export ORT (fast and portable) follows over a
+    committed 8-frame sequence with the path trained away from 0."""
+    from rtdenoise.export.onnx_export import export_model
+    from rtdenoise.export.validate import validate
+    from rtdenoise.models.data import load_sequence
+    from rtdenoise.shipped import sample_sequences
+
+    torch.manual_seed(0)
+    plain = NBG({"hidden": 6}).eval()
+    torch.manual_seed(0)
+    m = NBG({"hidden": 6, "pointwise_guide": True}).eval()
+    assert parameter_count(m) == parameter_count(plain) + 10 * 5 + 5
+    x = torch.rand(1, 10, 12, 14)
+    with torch.no_grad():
+        assert torch.equal(m.guide_net(x), plain.guide_net(x))
+        pw = m.guide_net.pointwise
+        pw.weight.normal_(0.0, 1.0)
+        pw.bias.normal_(0.0, 1.0)
+        m.guide_net.conv2.weight.zero_()  # the k x k path: its bias alone
+        expected = torch.sigmoid(
+            m.guide_net.conv2.bias.view(1, 5, 1, 1)
+            + torch.einsum("oc,nchw->nohw", pw.weight[:, :, 0, 0], x)
+            + pw.bias.view(1, 5, 1, 1)
+        )
+        assert float((m.guide_net(x) - expected).abs().max()) < 1e-6
+    assert plain.state_dict().keys() < m.state_dict().keys()  # Meng20's names kept
+
+    torch.manual_seed(1)
+    model = NBG({"pointwise_guide": True}).eval()
+    with torch.no_grad():
+        model.guide_net.pointwise.weight.normal_(0.0, 0.5)
+    data = export_model(model).SerializeToString()
+    seq = load_sequence(sample_sequences()[0], model.inputs)
+    frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
+    report = validate(model, data, frames, tolerance=1e-4)
+    assert report.passed, report.errors
+    assert set(report.errors) == {"ort_fast", "ort_portable"}

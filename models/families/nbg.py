@@ -31,6 +31,10 @@ Choices the paper leaves open (all in `NBGConfig`, stored in checkpoints):
 - GuideNet activation: leaky ReLU with slope `negative_slope` = 0.2 (the official code's lrelu;
   the paper's text says ReLU: slope 0). Zero ("SAME") padding as the official conv layers
   (`padding` "zeros"), or "replicate": the edge pixel repeated, as afn's and affinity's key.
+- `pointwise_guide` (off in Meng20): a 1 x 1 conv from GuideNet's input added to its last
+  conv's output before the sigmoid, the pointwise guidance map of HDRNet (Gharbi17): GuideNet's
+  k x k convs give a dark pixel beside a light nearly the light's guide, so the light's grid cell
+  reaches it; a per-pixel path lets the guides part at that pixel.
 - Initialisation `init` = "glorot" (Glorot-uniform weights, TF's default that the official code
   gets; biases 0); "uniform" is the paper's text (U[-1, 1], which saturates the sigmoid),
   "torch" PyTorch's default.
@@ -96,6 +100,9 @@ class NBGConfig(AccumulatingConfig):
     # (not in Meng20) hidden -> hidden convs between GuideNet's two, each with leaky ReLU
     middle_layers: int = 0
     middle_kernel_size: int = 3
+    # (not in Meng20) a 1 x 1 conv from GuideNet's input added before its sigmoid (Gharbi17's
+    # pointwise guide): guides may change at one pixel, where the k x k convs blur them
+    pointwise_guide: bool = False
     negative_slope: float = 0.2
     cell_sizes: tuple[int, ...] = tuple(s for s, _ in MENG20_GRIDS)
     grid_depths: tuple[int, ...] = tuple(d for _, d in MENG20_GRIDS)
@@ -204,7 +211,8 @@ def suppress_outliers(
 class GuideNet(nn.Module):
     """Meng20 Fig. 2 (left): conv k x k in -> hidden, leaky ReLU, conv k x k hidden -> out,
     sigmoid; with `middle_layers` (0 in Meng20) hidden -> hidden convs, each with leaky ReLU,
-    between the two."""
+    between the two, and with `pointwise_guide` a 1 x 1 conv in -> out added before the sigmoid
+    (initialised to 0: the same guides as without it until training moves it)."""
 
     def __init__(self, in_channels: int, out_channels: int, config: NBGConfig) -> None:
         super().__init__()
@@ -224,13 +232,21 @@ class GuideNet(nn.Module):
             elif config.init == "uniform":  # Meng20 s.5: "uniform random values from -1 to 1"
                 nn.init.uniform_(conv.weight, -1.0, 1.0)
                 nn.init.uniform_(conv.bias, -1.0, 1.0)
+        # built after the others' init: under one seed they match those of a model without it
+        self.pointwise = nn.Conv2d(in_channels, out_channels, 1) if config.pointwise_guide else None
+        if self.pointwise is not None:
+            nn.init.zeros_(self.pointwise.weight)
+            nn.init.zeros_(self.pointwise.bias)
         pad_convs(self, config.padding)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        x = F.leaky_relu(self.conv1(x), self.negative_slope)
+        h = F.leaky_relu(self.conv1(x), self.negative_slope)
         for conv in self.middle:
-            x = F.leaky_relu(conv(x), self.negative_slope)
-        return torch.sigmoid(self.conv2(x))
+            h = F.leaky_relu(conv(h), self.negative_slope)
+        logits = self.conv2(h)
+        if self.pointwise is not None:
+            logits = logits + self.pointwise(x)  # Gharbi17's pointwise guidance map
+        return torch.sigmoid(logits)
 
 
 @register_family
