@@ -307,3 +307,56 @@ def test_pointwise_guide_is_a_per_pixel_path_and_exports():
     report = validate(model, data, frames, tolerance=1e-4)
     assert report.passed, report.errors
     assert set(report.errors) == {"ort_fast", "ort_portable"}
+
+
+def test_history_gate_filters_between_the_frame_and_its_history_and_exports():
+    """`history_gate`: GuideNet reads S(color) too (13 channels) and outputs a gate b; the grids
+    filter r + b (r_TA - r). With guides that read no radiance, b = 1 gives the ungated model's
+    output, b = 0 that of the ungated model restarted every frame; an export ORT (fast and
+    portable) follows over a committed 8-frame sequence with state."""
+    from rtdenoise.export.onnx_export import export_model
+    from rtdenoise.export.validate import validate
+    from rtdenoise.models.data import load_sequence
+    from rtdenoise.shipped import sample_sequences
+
+    torch.manual_seed(0)
+    gated = NBG({"hidden": 6, "history_gate": True}).eval()
+    plain = NBG({"hidden": 6}).eval()
+    assert gated.guide_net.conv1.in_channels == 13 and gated.guide_net.conv2.out_channels == 6
+    seq = load_sequence(sample_sequences()[0], gated.inputs)
+    frames = [{k: torch.from_numpy(v[i : i + 1]) for k, v in seq.buffers.items()} for i in range(3)]
+
+    def run(model, restart_every_frame=False):
+        state = model.initial_state(1, *frames[0]["color"].shape[-2:])
+        outs = []
+        for i, frame in enumerate(frames):
+            reset = torch.tensor(1.0 if i == 0 or restart_every_frame else 0.0)
+            out, state = model(frame, state, reset)
+            outs.append(out)
+        return torch.stack(outs)
+
+    with torch.no_grad():  # guides from albedo, normal, depth only (the same with or without
+        # history); the gated k x k path's weights as plain's, the frame's channels 0
+        plain.guide_net.conv1.weight[:, :3] = 0.0
+        c1 = gated.guide_net.conv1.weight
+        c1.zero_()
+        c1[:, :10] = plain.guide_net.conv1.weight
+        gated.guide_net.conv1.bias.copy_(plain.guide_net.conv1.bias)
+        gated.guide_net.conv2.weight.zero_()
+        gated.guide_net.conv2.weight[:5] = plain.guide_net.conv2.weight
+        gated.guide_net.conv2.bias[:5] = plain.guide_net.conv2.bias
+        for logit, expected in ((60.0, run(plain)), (-60.0, run(plain, True))):
+            gated.guide_net.conv2.bias[5] = logit  # b = 1, then b = 0
+            got = run(gated)
+            assert float((got - expected).abs().max()) < 1e-4 * (1 + float(expected.abs().max()))
+        assert float((run(plain) - run(plain, True)).abs().max()) > 1e-2  # the history matters
+
+    torch.manual_seed(1)
+    model = NBG({"history_gate": True, "pointwise_guide": True}).eval()
+    with torch.no_grad():
+        model.guide_net.pointwise.weight.normal_(0.0, 0.5)
+    data = export_model(model).SerializeToString()
+    full = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
+    report = validate(model, data, full, tolerance=1e-4)
+    assert report.passed, report.errors
+    assert set(report.errors) == {"ort_fast", "ort_portable"}

@@ -35,6 +35,12 @@ Choices the paper leaves open (all in `NBGConfig`, stored in checkpoints):
   conv's output before the sigmoid, the pointwise guidance map of HDRNet (Gharbi17): GuideNet's
   k x k convs give a dark pixel beside a light nearly the light's guide, so the light's grid cell
   reaches it; a per-pixel path lets the guides part at that pixel.
+- `history_gate` (off in Meng20): GuideNet reads S(color) of this frame as 3 more channels
+  and outputs one more, a gate b in (0, 1); the grids filter r + b (r_TA - r), r this frame's
+  irradiance, instead of r_TA (the TA state is unchanged). TA's tests are geometric: on
+  reflections and through glass the motion vectors follow the surface, not the image, and the
+  accumulated history trails; the gate lets the network fall back to the frame. Its initial
+  logit is GATE_BIAS (b = 0.98).
 - Initialisation `init` = "glorot" (Glorot-uniform weights, TF's default that the official code
   gets; biases 0); "uniform" is the paper's text (U[-1, 1], which saturates the sigmoid),
   "torch" PyTorch's default.
@@ -84,6 +90,8 @@ from ..features import depth01
 from ..ops.bilateral_grid import bilateral_grid
 
 INPUT_CHANNELS = 10  # S(r_TA x albedo), albedo, normal, depth (Meng20 s.5)
+GATE_CHANNELS = 3  # with `history_gate`: S(color), this frame's radiance
+GATE_BIAS = 4.0  # the gate's initial logit: b = 0.98, nearly Meng20's r_TA
 GAMMA_FLOOR = 1e-8  # S(x) = min(max(x, GAMMA_FLOOR)^(1/gamma), 1): finite gradient at 0
 INITS = ("glorot", "uniform", "torch")
 GUIDE_TONEMAPS = ("gamma", "log1p")
@@ -103,6 +111,9 @@ class NBGConfig(AccumulatingConfig):
     # (not in Meng20) a 1 x 1 conv from GuideNet's input added before its sigmoid (Gharbi17's
     # pointwise guide): guides may change at one pixel, where the k x k convs blur them
     pointwise_guide: bool = False
+    # (not in Meng20) GuideNet also reads this frame's radiance and outputs a gate b per pixel:
+    # the grids filter r + b (r_TA - r) instead of r_TA (a stale history: reflections, glass)
+    history_gate: bool = False
     negative_slope: float = 0.2
     cell_sizes: tuple[int, ...] = tuple(s for s, _ in MENG20_GRIDS)
     grid_depths: tuple[int, ...] = tuple(d for _, d in MENG20_GRIDS)
@@ -264,8 +275,14 @@ class NBG(DenoiserModel):
     def __init__(self, config: NBGConfig | dict | None = None) -> None:
         super().__init__()
         self.cfg = config = NBGConfig.of(config)
-        # G guides and G - 1 composition weights (Meng20 Fig. 2: 3 + 2 = 5)
-        self.guide_net = GuideNet(INPUT_CHANNELS, 2 * config.grids - 1, config)
+        # G guides and G - 1 composition weights (Meng20 Fig. 2: 3 + 2 = 5), and the gate
+        gate = 1 if config.history_gate else 0
+        self.guide_net = GuideNet(
+            INPUT_CHANNELS + GATE_CHANNELS * gate, 2 * config.grids - 1 + gate, config
+        )
+        if gate:
+            with torch.no_grad():
+                self.guide_net.conv2.bias[-1] = GATE_BIAS
 
     def forward(
         self,
@@ -288,13 +305,19 @@ class NBG(DenoiserModel):
         radiance = guide_radiance(r_ta * frame.modulation, cfg)
         normal01 = 0.5 * (frame.normal + 1.0)
         depth_01 = depth01(frame.depth, cfg.depth_scale)
-        net_out = self.guide_net(torch.cat((radiance, frame.albedo, normal01, depth_01), dim=1))
+        features = [radiance, frame.albedo, normal01, depth_01]
+        if cfg.history_gate:  # (not in Meng20) this frame's radiance beside the history's
+            features.append(guide_radiance(frame.color, cfg))
+        net_out = self.guide_net(torch.cat(features, dim=1))
 
         # 4. Guides in [0, 255] and composition weights (s.4.1, s.4.5).
         g = cfg.grids
         guides = GUIDE_MAX * net_out[:, :g]
-        weights = net_out[:, g:]
+        weights = net_out[:, g : 2 * g - 1]
         last = 1.0 - weights.sum(dim=1, keepdim=True)
+        if cfg.history_gate:  # the grids' input: from this frame's irradiance (b = 0) to r_TA
+            gate = net_out[:, 2 * g - 1 :]
+            r_ta = frame.irradiance + gate * (r_ta - frame.irradiance)
 
         # 5-6. One bilateral grid per scale on the HDR irradiance, composed by eq. (15).
         composed = None
@@ -321,4 +344,12 @@ class NBG(DenoiserModel):
         return loss
 
 
-__all__ = ["INPUT_CHANNELS", "NBG", "GuideNet", "NBGConfig", "gamma_map", "suppress_outliers"]
+__all__ = [
+    "GATE_CHANNELS",
+    "INPUT_CHANNELS",
+    "NBG",
+    "GuideNet",
+    "NBGConfig",
+    "gamma_map",
+    "suppress_outliers",
+]
