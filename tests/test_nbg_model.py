@@ -228,14 +228,26 @@ def test_exports_three_grid_nodes_and_matches_ort_over_eight_frames():
     assert report.passed, report.errors
 
 
-def test_middle_layers_deepen_guidenet_and_export():
-    """`middle_layers` hidden -> hidden convs (k = middle_kernel_size, leaky ReLU) between
-    GuideNet's two: their parameters, their effect on the guides, and an export that ORT
-    (fast and portable) follows over a committed 8-frame sequence."""
+def assert_exports_over_committed(model: NBG) -> None:
+    """ORT (fast and portable) follows `model`'s export within 1e-4 over the first committed
+    sequence, 8 frames with state fed back."""
     from rtdenoise.export.onnx_export import export_model
     from rtdenoise.export.validate import validate
     from rtdenoise.models.data import load_sequence
     from rtdenoise.shipped import sample_sequences
+
+    data = export_model(model).SerializeToString()
+    seq = load_sequence(sample_sequences()[0], model.inputs)
+    frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
+    report = validate(model, data, frames, tolerance=1e-4)
+    assert report.passed, report.errors
+    assert set(report.errors) == {"ort_fast", "ort_portable"}
+
+
+def test_middle_layers_deepen_guidenet_and_export():
+    """`middle_layers` hidden -> hidden convs (k = middle_kernel_size, leaky ReLU) between
+    GuideNet's two: their parameters, their effect on the guides, and an export that ORT
+    (fast and portable) follows over a committed 8-frame sequence."""
 
     torch.manual_seed(0)
     m = NBG({"hidden": 6, "middle_layers": 2, "middle_kernel_size": 3}).eval()
@@ -259,12 +271,7 @@ def test_middle_layers_deepen_guidenet_and_export():
 
     torch.manual_seed(0)
     model = NBG({"middle_layers": 1}).eval()
-    data = export_model(model).SerializeToString()
-    seq = load_sequence(sample_sequences()[0], model.inputs)
-    frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
-    report = validate(model, data, frames, tolerance=1e-4)
-    assert report.passed, report.errors
-    assert set(report.errors) == {"ort_fast", "ort_portable"}
+    assert_exports_over_committed(model)
 
 
 def test_pointwise_guide_is_a_per_pixel_path_and_exports():
@@ -272,10 +279,6 @@ def test_pointwise_guide_is_a_per_pixel_path_and_exports():
     init (the same guides as without it, under one seed); with the k x k path made constant the
     guides are sigmoid(b + W x) pixel by pixel; an export ORT (fast and portable) follows over a
     committed 8-frame sequence with the path trained away from 0."""
-    from rtdenoise.export.onnx_export import export_model
-    from rtdenoise.export.validate import validate
-    from rtdenoise.models.data import load_sequence
-    from rtdenoise.shipped import sample_sequences
 
     torch.manual_seed(0)
     plain = NBG({"hidden": 6}).eval()
@@ -301,12 +304,7 @@ def test_pointwise_guide_is_a_per_pixel_path_and_exports():
     model = NBG({"pointwise_guide": True}).eval()
     with torch.no_grad():
         model.guide_net.pointwise.weight.normal_(0.0, 0.5)
-    data = export_model(model).SerializeToString()
-    seq = load_sequence(sample_sequences()[0], model.inputs)
-    frames = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
-    report = validate(model, data, frames, tolerance=1e-4)
-    assert report.passed, report.errors
-    assert set(report.errors) == {"ort_fast", "ort_portable"}
+    assert_exports_over_committed(model)
 
 
 def test_history_gate_filters_between_the_frame_and_its_history_and_exports():
@@ -314,8 +312,6 @@ def test_history_gate_filters_between_the_frame_and_its_history_and_exports():
     filter r + b (r_TA - r). With guides that read no radiance, b = 1 gives the ungated model's
     output, b = 0 that of the ungated model restarted every frame; an export ORT (fast and
     portable) follows over a committed 8-frame sequence with state."""
-    from rtdenoise.export.onnx_export import export_model
-    from rtdenoise.export.validate import validate
     from rtdenoise.models.data import load_sequence
     from rtdenoise.shipped import sample_sequences
 
@@ -355,8 +351,4 @@ def test_history_gate_filters_between_the_frame_and_its_history_and_exports():
     model = NBG({"history_gate": True, "pointwise_guide": True}).eval()
     with torch.no_grad():
         model.guide_net.pointwise.weight.normal_(0.0, 0.5)
-    data = export_model(model).SerializeToString()
-    full = [{k: v[i] for k, v in seq.buffers.items()} for i in range(seq.frames)]
-    report = validate(model, data, full, tolerance=1e-4)
-    assert report.passed, report.errors
-    assert set(report.errors) == {"ort_fast", "ort_portable"}
+    assert_exports_over_committed(model)
