@@ -315,14 +315,15 @@ class NBG(DenoiserModel):
         guides = GUIDE_MAX * net_out[:, :g]
         weights = net_out[:, g : 2 * g - 1]
         last = 1.0 - weights.sum(dim=1, keepdim=True)
-        if cfg.history_gate:  # the grids' input: from this frame's irradiance (b = 0) to r_TA
+        grid_input = r_ta
+        if cfg.history_gate:  # from this frame's irradiance (b = 0) to r_TA (b = 1)
             gate = net_out[:, 2 * g - 1 :]
-            r_ta = frame.irradiance + gate * (r_ta - frame.irradiance)
+            grid_input = frame.irradiance + gate * (r_ta - frame.irradiance)
 
         # 5-6. One bilateral grid per scale on the HDR irradiance, composed by eq. (15).
         composed = None
         for k, (s, d) in enumerate(zip(cfg.cell_sizes, cfg.grid_depths, strict=True)):
-            sliced = bilateral_grid(r_ta, guides[:, k : k + 1], s, d)  # eqs. (10)-(13)
+            sliced = bilateral_grid(grid_input, guides[:, k : k + 1], s, d)  # eqs. (10)-(13)
             w_k = weights[:, k : k + 1] if k < g - 1 else last
             composed = w_k * sliced if composed is None else composed + w_k * sliced
 
