@@ -248,7 +248,6 @@ def test_middle_layers_deepen_guidenet_and_export():
     """`middle_layers` hidden -> hidden convs (k = middle_kernel_size, leaky ReLU) between
     GuideNet's two: their parameters, their effect on the guides, and an export that ORT
     (fast and portable) follows over a committed 8-frame sequence."""
-
     torch.manual_seed(0)
     m = NBG({"hidden": 6, "middle_layers": 2, "middle_kernel_size": 3}).eval()
     plain = 25 * 10 * 6 + 6 + 25 * 6 * 5 + 5
@@ -279,7 +278,6 @@ def test_pointwise_guide_is_a_per_pixel_path_and_exports():
     init (the same guides as without it, under one seed); with the k x k path made constant the
     guides are sigmoid(b + W x) pixel by pixel; an export ORT (fast and portable) follows over a
     committed 8-frame sequence with the path trained away from 0."""
-
     torch.manual_seed(0)
     plain = NBG({"hidden": 6}).eval()
     torch.manual_seed(0)
