@@ -176,11 +176,11 @@ def _check_family(model: DenoiserModel, family: str, path: str | os.PathLike) ->
 
 def initial_weights(
     path: str | os.PathLike, family: str, model_config: dict | None = None
-) -> DenoiserModel:
+) -> tuple[DenoiserModel, dict]:
     """A `family` model with the weights of checkpoint `path` and its config updated by
-    `model_config`: the start of a fine-tuning run. Refuses another family or weights whose
-    names or shapes the new config changes, naming them."""
-    source, _meta = load_checkpoint(path)
+    `model_config`, and that checkpoint's meta: the start of a fine-tuning run. Refuses another
+    family or weights whose names or shapes the new config changes, naming them."""
+    source, meta = load_checkpoint(path)
     _check_family(source, family, path)
     model = build_model(family, {**source.config(), **(model_config or {})})
     theirs, ours = source.state_dict(), model.state_dict()
@@ -194,7 +194,12 @@ def initial_weights(
             f"{' ...' if len(changed) > 6 else ''}; fine-tuning keeps every weight's shape"
         )
     model.load_state_dict(theirs)
-    return model
+    return model, meta
+
+
+def commands_of(meta: dict) -> list[str]:
+    """The command lines that made a checkpoint, oldest first (older ones record one)."""
+    return list(meta.get("commands", [meta["command"]] if "command" in meta else []))
 
 
 def train(
@@ -231,11 +236,14 @@ def train(
     rng = seed_everything(s.seed)
     train_state: dict | None = None
     meta_in: dict = {}
+    earlier_commands: list[str] = []  # what made the weights this run starts from
     if resume is not None:
         model, meta_in, train_state = load_training_state(resume)
         _check_family(model, family, resume)
+        earlier_commands = commands_of(meta_in)
     elif init_from is not None:
-        model = initial_weights(init_from, family, model_config)
+        model, source_meta = initial_weights(init_from, family, model_config)
+        earlier_commands = commands_of(source_meta)
     else:
         model = build_model(family, model_config)
     model.to(device).train()
@@ -280,8 +288,7 @@ def train(
     scheduler = build_scheduler(optimizer, s.schedule, s.steps, s.warmup)
     step = 0
     history: list[list[float]] = list(meta_in.get("loss_history", []))
-    commands = list(meta_in.get("commands", [meta_in["command"]] if "command" in meta_in else []))
-    commands.append(command)
+    commands = [*earlier_commands, command]
     if train_state is not None:
         optimizer.load_state_dict(train_state["optimizer"])
         if scheduler is None:  # a constant rate: this run's --lr (it may change on resume)

@@ -254,11 +254,12 @@ def test_init_from_starts_a_new_run_from_a_checkpoints_weights(seq_dir, tmp_path
     --config where the shapes stay; another family or changed shapes are refused by name."""
     from rtdenoise.models.checkpoint import CheckpointError
 
-    source = train([seq_dir], tmp_path / "a.pt", model_config=TINY, settings=_settings(2))
+    source = train([seq_dir], tmp_path / "a.pt", model_config=TINY, settings=_settings(2),
+                   command="stage 1")  # fmt: skip
     src_model, _ = load_checkpoint(source.checkpoint)
     tuned = train(
         [seq_dir], tmp_path / "b.pt", init_from=source.checkpoint,
-        model_config={"reprojection": "per_tap"}, settings=_settings(1, lr=0.0),
+        model_config={"reprojection": "per_tap"}, settings=_settings(1, lr=0.0), command="stage 2",
     )  # fmt: skip
     model, meta = load_checkpoint(tuned.checkpoint)
     assert model.config() == {**src_model.config(), "reprojection": "per_tap"}
@@ -266,6 +267,8 @@ def test_init_from_starts_a_new_run_from_a_checkpoints_weights(seq_dir, tmp_path
     for name, w in src_model.state_dict().items():
         assert torch.equal(weights[name], w), name  # lr 0: the source's weights
     assert meta["initialised_from"] == str(source.checkpoint) and meta["step"] == 1
+    # every stage's command line, the source's first: the meta says how to remake the weights
+    assert meta["command"] == "stage 2" and meta["commands"] == ["stage 1", "stage 2"]
     with pytest.raises(CheckpointError, match=r"a\.pt: the config changes the weights .*"):
         train([seq_dir], tmp_path / "c.pt", init_from=source.checkpoint,
               model_config={"widths": [8, 16]}, settings=_settings(1))  # fmt: skip
