@@ -336,6 +336,32 @@ def test_alpha_min_bounds_what_the_history_contributes():
         build_model("crossreg", {**SMALL, "alpha_min": 1.0})
 
 
+def test_history_clamp_keeps_a_wrong_history_near_this_frames_pilots():
+    """history_clamp d: a history made 5 log units too bright (a light's edge pixel landing on
+    a dark one) moves the next output far from the output without history at d = 0 (the paper)
+    and little at d = 0.5; a d larger than any difference changes nothing; d < 0 is refused."""
+    frames = _frames(2)
+
+    def second_output(d: float, poison: float, reset_second: bool = False) -> torch.Tensor:
+        model = build_model("crossreg", {**SMALL, "history_clamp": d, "lr": 1e-12})
+        state = model.initial_state(1, 32, 32)
+        with torch.no_grad():
+            for t, frame in enumerate(frames):
+                if t == 1:
+                    state["history"][:, :3] += poison
+                fresh = t == 0 or reset_second
+                out, state = model(_buffers(frame), state, torch.tensor(1.0 if fresh else 0.0))
+        return out
+
+    no_history = second_output(0.0, 0.0, reset_second=True)
+    far = float((second_output(0.0, 5.0) - no_history).abs().mean())
+    near = float((second_output(0.5, 5.0) - no_history).abs().mean())
+    assert far > 1.0 and near < 0.1 * far, (near, far)
+    torch.testing.assert_close(second_output(1e3, 0.0), second_output(0.0, 0.0))
+    with pytest.raises(ValueError, match="history_clamp"):
+        build_model("crossreg", {**SMALL, "history_clamp": -1.0})
+
+
 def test_the_online_step_traces_for_export():
     """The export's symbolic trace of one frame (make_fx, models/online.py traced_step) goes
     through: the offline-pretraining test on `freeze` (a graph input there) is not taken while

@@ -73,9 +73,11 @@ def test_online_learning_improves_frames_10_to_20_with_torch_blocked():
     assert result["torch"] == "None"  # the learning ran without torch
     assert result["learn_steps"] == 24.0 and result["frozen_steps"] == 0.0
     assert result["learn_loss"] > 0 and result["frozen_loss"] > 0
-    # measured (PSNR of frames 10-20): learning 23.08 dB, frozen 22.73 dB, noisy 18.55 dB. On
+    # measured (PSNR of frames 10-20): learning 23.10 dB, frozen 23.02 dB, noisy 18.55 dB. Before
+    # the demo's history clamp (2026-12-06) 23.08 / 22.73: most of the update's gain here was
+    # repairing the light the unclamped history smeared, which the clamp now prevents. On
     # seq_000 / seq_001 learning is 0.08 / 0.11 dB below frozen at this horizon (see README)
-    assert result["learn"] > result["frozen"] + 0.2, result
+    assert result["learn"] > result["frozen"] + 0.05, result
     assert result["frozen"] > result["noisy"] + 3.0, result
 
 

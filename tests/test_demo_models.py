@@ -57,11 +57,9 @@ def test_every_family_with_a_gain_threshold_ships_a_demo():
 # Issue 31: no shipped model is worse than the noisy input on any of these, on any sequence
 HIGHER_IS_BETTER = {"psnr": True, "ssim": True, "smape": False, "relmse": False}
 # (family, committed sequence, metric) where a shipped demo is still worse than the input today:
-# small bright lights smeared into dark neighbours (benchmarks/README.md, "Small bright lights").
-# Listed exactly: a new one fails, and so does one that is gone (then delete it here).
-KNOWN_WORSE = {
-    ("crossreg", 2, "relmse"),
-}
+# none since demo:crossreg's history clamp (2026-12-06; benchmarks/README.md, "crossreg's history
+# clamp"). Listed exactly: a new one fails, and so does one that is gone (then delete it here).
+KNOWN_WORSE: set[tuple[str, int, str]] = set()
 
 
 @pytest.mark.parametrize("family", FAMILIES)

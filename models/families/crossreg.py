@@ -125,6 +125,11 @@ class CrossRegConfig(FamilyConfig):
     # a floor on the temporal weight alpha (not in the paper: 0): with alpha near 0 the output is
     # the reprojected history and a wrong one (a light behind moving glass) is never cleared
     alpha_min: float = 0.0
+    # the warped previous log output kept within [min(f~A, f~B) - d, max(f~A, f~B) + d] of this
+    # frame's pilots, d this value (not in the paper: 0 = off): the geometry tests pass an edge
+    # pixel whose depth sample missed a light its colour partly holds, and its history then
+    # lights the dark pixel it lands on
+    history_clamp: float = 0.0
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -142,6 +147,8 @@ class CrossRegConfig(FamilyConfig):
             raise self.fail(f"temporal_screening must be 0 or odd >= 3, got {k}")
         if not 0.0 <= self.alpha_min < 1.0:
             raise self.fail(f"alpha_min must be in [0, 1), got {self.alpha_min}")
+        if self.history_clamp < 0.0:
+            raise self.fail(f"history_clamp must be >= 0 (0 = off), got {self.history_clamp}")
         if not 0.0 <= self.temporal_loss_weight <= 1.0:
             raise self.fail(
                 f"temporal_loss_weight must be in [0, 1], got {self.temporal_loss_weight}"
@@ -356,6 +363,10 @@ class CrossReg(DenoiserModel):
         valid = valid * (1.0 - reset)
         has_history = valid > 0.5
         prev_out = torch.where(has_history, warped[:, :3], 0.5 * (pilot_a + pilot_b))
+        if cfg.history_clamp:  # the history no farther than d (log units) from the pilots
+            d = cfg.history_clamp
+            lo, hi = torch.minimum(pilot_a, pilot_b) - d, torch.maximum(pilot_a, pilot_b) + d
+            prev_out = torch.minimum(torch.maximum(prev_out, lo), hi)
         prev_a, prev_b = warped[:, 3:6], warped[:, 6:9]
         labelled = has_history  # where the warped previous pilots are the temporal labels
         if cfg.temporal_screening:
