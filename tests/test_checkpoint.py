@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -158,3 +160,33 @@ def test_reprojection_round_trips_and_bad_values_are_refused(tmp_path):
     match = "reprojection must be one of 'bilinear', 'per_tap', 'per_tap_hdr', 'per_tap_hdr2'"
     with pytest.raises(ValueError, match=match):
         build_model("wskp", {"reprojection": "nearest"})
+
+
+def test_weight_average_is_the_weighted_mean_and_keeps_every_command(tmp_path, model):
+    """scripts/average_checkpoints.py: 0.7 a + 0.3 b per float tensor, the sources' commands
+    once each (oldest first) then its own; another config is refused, naming the file."""
+    import runpy
+
+    from rtdenoise.models.weight_average import average_checkpoints
+
+    a = save_checkpoint(tmp_path / "a.pt", model, {"commands": ["train a"]})
+    torch.manual_seed(1)
+    other = build_model("afn", SMALL)
+    b = save_checkpoint(tmp_path / "b.pt", other, {"commands": ["train a", "fine-tune b"]})
+    script = Path(__file__).resolve().parents[1] / "scripts" / "average_checkpoints.py"
+    main = runpy.run_path(str(script))["main"]
+    out = tmp_path / "soup.pt"
+    assert main([str(a), str(b), "--weights", "0.7", "0.3", "-o", str(out)]) == 0
+    soup, meta = load_checkpoint(out)
+    for key, value in soup.state_dict().items():
+        if value.is_floating_point():
+            want = 0.7 * model.state_dict()[key] + 0.3 * other.state_dict()[key]
+            torch.testing.assert_close(value, want)
+    assert meta["commands"][:2] == ["train a", "fine-tune b"]
+    assert meta["commands"][2].startswith("python scripts/average_checkpoints.py")
+    assert [s["weight"] for s in meta["averaged_from"]] == [0.7, 0.3]
+    wider = save_checkpoint(tmp_path / "c.pt", build_model("afn", {**SMALL, "refine_width": 12}))
+    with pytest.raises(CheckpointError, match="c.pt"):
+        average_checkpoints([a, wider], [0.5, 0.5])
+    with pytest.raises(ValueError, match="sum to 1"):
+        average_checkpoints([a, b], [0.5, 0.6])
