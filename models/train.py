@@ -178,23 +178,42 @@ def initial_weights(
     path: str | os.PathLike, family: str, model_config: dict | None = None
 ) -> tuple[DenoiserModel, dict]:
     """A `family` model with the weights of checkpoint `path` and its config updated by
-    `model_config`, and that checkpoint's meta: the start of a fine-tuning run. Refuses another
-    family or weights whose names or shapes the new config changes, naming them."""
+    `model_config`, and that checkpoint's meta: the start of a fine-tuning run. A weight whose
+    input channels (dim 1) the config grows keeps its channels first and starts the new ones at
+    zero, so the model computes what the checkpoint did: families append an input an option
+    adds (nbg's and afn's `history_input`) after the others. Refuses another family or any
+    other change of a weight's name or shape, naming them."""
     source, meta = load_checkpoint(path)
     _check_family(source, family, path)
     model = build_model(family, {**source.config(), **(model_config or {})})
     theirs, ours = source.state_dict(), model.state_dict()
+    grown = {k for k in theirs.keys() & ours.keys() if _grows_inputs(theirs[k], ours[k])}
     changed = sorted(
         k for k in theirs.keys() | ours.keys()
-        if k not in theirs or k not in ours or theirs[k].shape != ours[k].shape
+        if k not in grown
+        and (k not in theirs or k not in ours or theirs[k].shape != ours[k].shape)
     )  # fmt: skip
     if changed:
         raise CheckpointError(
             f"{path}: the config changes the weights {', '.join(changed[:6])}"
             f"{' ...' if len(changed) > 6 else ''}; fine-tuning keeps every weight's shape"
+            " (or grows its input channels)"
         )
+    for k in grown:
+        weight = torch.zeros_like(ours[k])
+        weight[:, : theirs[k].shape[1]] = theirs[k]
+        theirs[k] = weight
     model.load_state_dict(theirs)
     return model, meta
+
+
+def _grows_inputs(old: torch.Tensor, new: torch.Tensor) -> bool:
+    """`new` is `old` with more input channels (dim 1) of a conv or linear weight."""
+    return (
+        old.ndim == new.ndim >= 2
+        and new.shape[1] > old.shape[1]
+        and old.shape[:1] + old.shape[2:] == new.shape[:1] + new.shape[2:]
+    )
 
 
 def commands_of(meta: dict) -> list[str]:

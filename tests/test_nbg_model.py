@@ -350,3 +350,41 @@ def test_history_gate_filters_between_the_frame_and_its_history_and_exports():
     with torch.no_grad():
         model.guide_net.pointwise.weight.normal_(0.0, 0.5)
     assert_exports_over_committed(model)
+
+
+def test_history_input_grows_guidenet_from_a_checkpoint_and_exports(tmp_path):
+    """`history_input`: GuideNet reads TA's current-frame weight as a last channel (11 inputs
+    without the gate). Fine-tuning a checkpoint with it on (`initial_weights`) starts that channel
+    at zero, so the grown model gives the checkpoint's outputs over frames with history; once the
+    channel has weight, frames with and without history differ by more than before. Exports."""
+    from rtdenoise.models.checkpoint import save_checkpoint
+    from rtdenoise.models.data import load_sequence
+    from rtdenoise.models.train import initial_weights
+    from rtdenoise.shipped import sample_sequences
+
+    torch.manual_seed(0)
+    plain = NBG({"hidden": 6}).eval()
+    path = save_checkpoint(tmp_path / "plain.pt", plain)
+    grown, _ = initial_weights(path, "nbg", {"history_input": True})
+    grown.eval()
+    assert grown.guide_net.conv1.in_channels == 11
+    assert float(grown.guide_net.conv1.weight[:, 10].abs().max()) == 0.0
+    seq = load_sequence(sample_sequences()[0], plain.inputs)
+    frames = [{k: torch.from_numpy(v[i : i + 1]) for k, v in seq.buffers.items()} for i in range(3)]
+
+    def run(model):
+        state = model.initial_state(1, *frames[0]["color"].shape[-2:])
+        outs = []
+        for i, frame in enumerate(frames):
+            out, state = model(frame, state, torch.tensor(1.0 if i == 0 else 0.0))
+            outs.append(out)
+        return torch.stack(outs)
+
+    with torch.no_grad():
+        torch.testing.assert_close(run(grown), run(plain))
+        grown.guide_net.conv1.weight[:, 10].normal_(0.0, 2.0)
+        assert float((run(grown)[1:] - run(plain)[1:]).abs().max()) > 1e-3  # it reads the weight
+    with pytest.raises(Exception, match="changes the weights"):
+        initial_weights(path, "nbg", {"hidden": 8})
+    torch.manual_seed(1)
+    assert_exports_over_committed(NBG({"history_gate": True, "history_input": True}).eval())

@@ -41,6 +41,9 @@ Choices the paper leaves open (all in `NBGConfig`, stored in checkpoints):
   reflections and through glass the motion vectors follow the surface, not the image, and the
   accumulated history trails; the gate lets the network fall back to the frame. Its initial
   logit is GATE_BIAS (b = 0.98).
+- `history_input` (off in Meng20; afn's key): GuideNet reads TA's current-frame weight a as one
+  more channel, the last (1 on pixels without history, 0.2 once converged): a frame after a
+  reset or a disocclusion is 1 spp, and its best guides are not those of an accumulated one.
 - Initialisation `init` = "glorot" (Glorot-uniform weights, TF's default that the official code
   gets; biases 0); "uniform" is the paper's text (U[-1, 1], which saturates the sigmoid),
   "torch" PyTorch's default.
@@ -114,6 +117,10 @@ class NBGConfig(AccumulatingConfig):
     # (not in Meng20) GuideNet also reads this frame's radiance and outputs a gate b per pixel:
     # the grids filter r + b (r_TA - r) instead of r_TA (a stale history: reflections, glass)
     history_gate: bool = False
+    # (not in Meng20) GuideNet also reads TA's current-frame weight (1 where there is no history,
+    # down to 0.2 where it has converged), as afn's `history_input`: frames without history are
+    # 1 spp and want other guides than accumulated ones
+    history_input: bool = False
     negative_slope: float = 0.2
     cell_sizes: tuple[int, ...] = tuple(s for s, _ in MENG20_GRIDS)
     grid_depths: tuple[int, ...] = tuple(d for _, d in MENG20_GRIDS)
@@ -277,9 +284,8 @@ class NBG(DenoiserModel):
         self.cfg = config = NBGConfig.of(config)
         # G guides and G - 1 composition weights (Meng20 Fig. 2: 3 + 2 = 5), and the gate
         gate = 1 if config.history_gate else 0
-        self.guide_net = GuideNet(
-            INPUT_CHANNELS + GATE_CHANNELS * gate, 2 * config.grids - 1 + gate, config
-        )
+        in_channels = INPUT_CHANNELS + GATE_CHANNELS * gate + int(config.history_input)
+        self.guide_net = GuideNet(in_channels, 2 * config.grids - 1 + gate, config)
         if gate:
             with torch.no_grad():
                 self.guide_net.conv2.bias[-1] = GATE_BIAS
@@ -308,6 +314,8 @@ class NBG(DenoiserModel):
         features = [radiance, frame.albedo, normal01, depth_01]
         if cfg.history_gate:  # (not in Meng20) this frame's radiance beside the history's
             features.append(guide_radiance(frame.color, cfg))
+        if cfg.history_input:  # (not in Meng20) how much of r_TA is this frame: 1 = no history
+            features.append(frame.blend)
         net_out = self.guide_net(torch.cat(features, dim=1))
 
         # 4. Guides in [0, 255] and composition weights (s.4.1, s.4.5).
