@@ -182,7 +182,8 @@ def train_command(
             metavar="CHECKPOINT",
             help="Fine-tune: start a new run from this checkpoint's weights (a .pt file or "
             "demo:<family>); --config changes its config where the weights keep their shapes "
-            "(e.g. Isik21's deployment step: --config '{\"leaky_slope\": 0}').",
+            "(e.g. Isik21's deployment step: --config '{\"leaky_slope\": 0}') or gain input "
+            "channels, which start at zero (e.g. nbg's --config '{\"history_input\": true}').",
         ),
     ] = None,
     val: Annotated[
