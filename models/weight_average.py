@@ -1,10 +1,11 @@
 """Weight averages of checkpoints of one lineage (a "model soup", Wortsman et al. 2022).
 
 Two fine-tunes of the same run (e.g. a stage and the stage fine-tuned from it) lie in one basin,
-and a weighted mean of their weights trades what each stage bought: demo:nbg's last stage keeps
-dark pixels beside lights dark at some cost on glass, and a blend keeps most of both. Only
-checkpoints of the same family and config are averaged; the result's meta lists every source's
-commands (oldest first, each once) and then the averaging command.
+and a weighted mean of their weights trades what each stage bought: nbg's dark-edge stage keeps
+dark pixels beside lights dark at some cost on glass, and a blend of it with the stage before
+keeps most of both (benchmarks/README.md, "More steps for the gated nbg"). Only checkpoints of
+the same family and config are averaged; the result's meta lists every source's commands
+(oldest first, each once) and then the averaging command.
 """
 
 from __future__ import annotations
