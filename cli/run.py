@@ -56,7 +56,7 @@ from rtdenoise.shipped import demo_names
 # The model used when --model is not given (README, "Against Open Image Denoise"): demo:nbg,
 # Meng20's bilateral grids with a history gate, the highest PSNR and SSIM of the shipped models
 # on the unseen validation set (above OIDN high's mean, not on every sequence), worse than the
-# noisy input nowhere, small lights kept in place, at about 0.8-0.9x OIDN fast's time per 720p frame.
+# noisy input nowhere, small lights kept in place, at 0.8-0.9x OIDN fast's time per 720p frame.
 DEFAULT_MODEL = "demo:nbg"
 TABLE_MAX_FRAMES = 12  # per-frame rows up to this many frames, else only the mean
 
