@@ -23,6 +23,7 @@ import argparse
 import json
 import time
 import types
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -53,16 +54,16 @@ def oracle_loss(self, hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, has_histor
     return (0.5 * ((hat_a - label) ** 2 + (hat_b - label) ** 2) / (label * label + eps)).mean()
 
 
-def run(model, seq, learn: bool, oracle: bool = False) -> list[float]:
-    """Per-frame tonemapped MSE of `model` over `seq`, learning or frozen; with `oracle`, the
-    online update learns from each frame's reference (`oracle_loss`)."""
+def outputs(model, seq, learn: bool = True, oracle: bool = False) -> Iterator[np.ndarray]:
+    """`model`'s output (C, H, W) on each frame of `seq`, learning or frozen, its state carried
+    and a cut restarting the history, not the learning; with `oracle`, the online update learns
+    from each frame's reference (`oracle_loss`)."""
     if oracle:
         model.online_loss = types.MethodType(oracle_loss, model)
     n_frames = seq.reference.shape[0]
     h, w = seq.reference.shape[-2:]
     state = model.initial_state(1, h, w)
     cuts = set(seq.cuts)
-    mses = []
     with torch.no_grad():
         for t in range(n_frames):
             buffers = {k: torch.from_numpy(v[t][None]) for k, v in seq.buffers.items()}
@@ -73,8 +74,15 @@ def run(model, seq, learn: bool, oracle: bool = False) -> list[float]:
             state["freeze"] = torch.full_like(state["freeze"], 0.0 if learn else 1.0)
             state["keep"] = torch.full_like(state["keep"], 0.0 if t == 0 else 1.0)
             out, state = model(buffers, state, torch.tensor(1.0 if first else 0.0))
-            mses.append(mse_tonemapped(out[0].numpy(), seq.reference[t]))
-    return mses
+            yield out[0].numpy()
+
+
+def run(model, seq, learn: bool, oracle: bool = False) -> list[float]:
+    """Per-frame tonemapped MSE of `model` over `seq` (`outputs`)."""
+    return [
+        mse_tonemapped(out, ref)
+        for out, ref in zip(outputs(model, seq, learn, oracle), seq.reference, strict=True)
+    ]
 
 
 def pooled(mses: list[float], skip: int) -> float:
