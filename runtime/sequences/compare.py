@@ -18,7 +18,7 @@ from __future__ import annotations
 import inspect
 import statistics
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -330,6 +330,17 @@ def speed(
 SCORES = ("psnr", "ssim", "smape", "relmse", "trmae")
 
 
+def walk(contender: Contender, frames: Sequence[Frame], cuts: Collection[int] = ()) -> Iterator:
+    """The contender's output (C, H, W float32) on each frame of one sequence, from a reset, its
+    state carried; `cuts`: the indices of the frames that start a new shot (its `cut` before)."""
+    cuts = set(cuts)
+    contender.reset()
+    for i, frame in enumerate(frames):
+        if i in cuts:
+            (contender.cut or contender.reset)()
+        yield np.asarray(contender.denoise(contender.prepare(frame)), np.float32)
+
+
 def quality(
     contenders: Sequence[Contender],
     sequences: Sequence[tuple],
@@ -344,13 +355,10 @@ def quality(
         progress(f"quality: {c.name}")
         per_seq = {}
         for name, frames, references, *rest in sequences:
-            cuts = set(rest[0]) if rest else set()
-            c.reset()
             metrics = SequenceMetrics()
-            for i, (frame, ref) in enumerate(zip(frames, references, strict=True)):
-                if i in cuts:
-                    (c.cut or c.reset)()
-                metrics.add(np.asarray(c.denoise(c.prepare(frame)), np.float32), ref)
+            outputs = walk(c, frames, rest[0] if rest else ())
+            for output, ref in zip(outputs, references, strict=True):
+                metrics.add(output, ref)
             s = metrics.summary()
             per_seq[name] = {k: s[k] for k in SCORES}
         out[c.name] = {
