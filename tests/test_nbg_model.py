@@ -4,6 +4,8 @@ suppression, export with validation against ONNX Runtime."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import torch
@@ -305,6 +307,18 @@ def test_pointwise_guide_is_a_per_pixel_path_and_exports():
     assert_exports_over_committed(model)
 
 
+def _outputs(model, restart_every_frame: bool = False, *, frames: list[dict]) -> torch.Tensor:
+    """(T, ...) outputs of `model` over `frames`, its state carried (reset on the first frame,
+    or on every frame)."""
+    state = model.initial_state(1, *frames[0]["color"].shape[-2:])
+    outs = []
+    for i, frame in enumerate(frames):
+        reset = torch.tensor(1.0 if i == 0 or restart_every_frame else 0.0)
+        out, state = model(frame, state, reset)
+        outs.append(out)
+    return torch.stack(outs)
+
+
 def test_history_gate_filters_between_the_frame_and_its_history_and_exports():
     """`history_gate`: GuideNet reads S(color) too (13 channels) and outputs a gate b; the grids
     filter r + b (r_TA - r). With guides that read no radiance, b = 1 gives the ungated model's
@@ -319,15 +333,7 @@ def test_history_gate_filters_between_the_frame_and_its_history_and_exports():
     assert gated.guide_net.conv1.in_channels == 13 and gated.guide_net.conv2.out_channels == 6
     seq = load_sequence(sample_sequences()[0], gated.inputs)
     frames = [{k: torch.from_numpy(v[i : i + 1]) for k, v in seq.buffers.items()} for i in range(3)]
-
-    def run(model, restart_every_frame=False):
-        state = model.initial_state(1, *frames[0]["color"].shape[-2:])
-        outs = []
-        for i, frame in enumerate(frames):
-            reset = torch.tensor(1.0 if i == 0 or restart_every_frame else 0.0)
-            out, state = model(frame, state, reset)
-            outs.append(out)
-        return torch.stack(outs)
+    run = functools.partial(_outputs, frames=frames)
 
     with torch.no_grad():  # guides from albedo, normal, depth only (the same with or without
         # history); the gated k x k path's weights as plain's, the frame's channels 0
@@ -371,14 +377,7 @@ def test_history_input_grows_guidenet_from_a_checkpoint_and_exports(tmp_path):
     assert float(grown.guide_net.conv1.weight[:, 10].abs().max()) == 0.0
     seq = load_sequence(sample_sequences()[0], plain.inputs)
     frames = [{k: torch.from_numpy(v[i : i + 1]) for k, v in seq.buffers.items()} for i in range(3)]
-
-    def run(model):
-        state = model.initial_state(1, *frames[0]["color"].shape[-2:])
-        outs = []
-        for i, frame in enumerate(frames):
-            out, state = model(frame, state, torch.tensor(1.0 if i == 0 else 0.0))
-            outs.append(out)
-        return torch.stack(outs)
+    run = functools.partial(_outputs, frames=frames)
 
     with torch.no_grad():
         torch.testing.assert_close(run(grown), run(plain))
