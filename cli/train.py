@@ -226,6 +226,15 @@ def train_command(
             "dark neighbours (0: off).",
         ),
     ] = 0.0,
+    first_frame_weight: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help="Add this multiple of the loss (temporal term off) on each clip's first frame, "
+            "the one that starts without history as a shot's first frame does: where a "
+            "temporal model is weakest (0: off).",
+        ),
+    ] = 0.0,
     oversample: Annotated[
         list[str] | None,
         typer.Option(
@@ -409,6 +418,7 @@ def train_command(
             relmse_weight=relmse_weight,
             rel_l1_weight=rel_l1_weight,
             dark_edge_weight=dark_edge_weight,
+            first_frame_weight=first_frame_weight,
             rotations=rotations,
             permute=permute_channels,
             exposure=exposure.value,

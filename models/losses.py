@@ -157,13 +157,17 @@ def training_loss(
     relmse_weight: float = 0.0,
     rel_l1_weight: float = 0.0,
     dark_edge_weight: float = 0.0,
+    first_frame_weight: float = 0.0,
 ) -> LossFn:
     """The loss `denoise-train --loss name` minimises for `model`: (outputs, reference,
     temporal_weight) -> scalar. A replacement of the paper's loss keeps a family's
     regulariser where the family exposes one as `model.regulariser()` (a scalar, or None).
     `relmse_weight` / `rel_l1_weight` / `dark_edge_weight` > 0 add that multiple of relMSE
     (`relmse`) / relative L1 (`relative_l1`) / relative L1 of the dark pixels beside bright ones
-    (`dark_edge_l1`) of the outputs to the loss."""
+    (`dark_edge_l1`) of the outputs to the loss. `first_frame_weight` > 0 adds that multiple of
+    the same loss (temporal term off) on each clip's first frame, the one that starts without
+    history (clips never cross a cut): what a shot's first frame costs where a model leans on
+    its history (a family's regulariser still counts once: `regulariser()` empties on read)."""
     if name not in LOSSES:
         raise ValueError(f"unknown loss {name!r}; choose one of {', '.join(LOSSES)}")
     extra = {
@@ -171,6 +175,8 @@ def training_loss(
         "rel_l1_weight": (rel_l1_weight, relative_l1),
         "dark_edge_weight": (dark_edge_weight, dark_edge_l1),
     }
+    if first_frame_weight < 0:
+        raise ValueError(f"first_frame_weight must be >= 0, got {first_frame_weight}")
     for label, (weight, _) in extra.items():
         if weight < 0:
             raise ValueError(f"{label} must be >= 0, got {weight}")
@@ -188,13 +194,19 @@ def training_loss(
             return loss if reg is None else loss + reg
 
     terms = [(weight, term) for weight, term in extra.values() if weight]
-    if not terms:
-        return base
 
-    def with_relative_terms(outputs, reference, temporal_weight):
+    def with_terms(outputs, reference, temporal_weight):
         loss = base(outputs, reference, temporal_weight)
         for weight, term in terms:
             loss = loss + weight * term(outputs, reference)
         return loss
 
-    return with_relative_terms
+    whole = with_terms if terms else base
+    if not first_frame_weight:
+        return whole
+
+    def with_first_frames(outputs, reference, temporal_weight):
+        loss = whole(outputs, reference, temporal_weight)  # first: it takes the regulariser
+        return loss + first_frame_weight * whole(outputs[:, :1], reference[:, :1], 0.0)
+
+    return with_first_frames

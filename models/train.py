@@ -64,6 +64,7 @@ class TrainSettings:
     relmse_weight: float = 0.0  # + this x relMSE of the outputs (models.losses.relmse)
     rel_l1_weight: float = 0.0  # + this x relative L1 of the outputs (models.losses.relative_l1)
     dark_edge_weight: float = 0.0  # + this x models.losses.dark_edge_l1 of the outputs
+    first_frame_weight: float = 0.0  # + this x the loss of each clip's first frame (no history)
     rotations: bool = False  # random quarter turns (models.augment)
     permute: bool = False  # random permutation of the colour channels (models.augment)
     exposure: str = "none"  # none or auto (models.data)
@@ -266,7 +267,14 @@ def train(
     else:
         model = build_model(family, model_config)
     model.to(device).train()
-    loss_fn = training_loss(s.loss, model, s.relmse_weight, s.rel_l1_weight, s.dark_edge_weight)
+    loss_fn = training_loss(
+        s.loss,
+        model,
+        s.relmse_weight,
+        s.rel_l1_weight,
+        s.dark_edge_weight,
+        s.first_frame_weight,
+    )
     schedule = schedule_settings(s.schedule, s.steps, s.warmup)
     if train_state is not None:
         check_resumable(train_state.get("schedule"), schedule, str(resume))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 import torch
 
+from rtdenoise.models.families.affinity import Affinity
 from rtdenoise.models.losses import (
     LOSSES,
     dark_edge_l1,
@@ -218,3 +219,28 @@ def test_dark_edge_weight_weighs_only_the_dark_pixels_beside_a_bright_one():
     )
     with pytest.raises(ValueError, match="dark_edge_weight"):
         training_loss("smape", model, dark_edge_weight=-1.0)
+
+
+def test_first_frame_weight_adds_the_first_frames_loss_once_more_times_w():
+    """--first-frame-weight w adds w x the loss (relative terms in, temporal term out) of each
+    clip's first frame: only frame 0's error moves it, and an affinity model's bandwidth
+    regulariser is still counted once (the whole clip's loss takes it)."""
+    model = build_model("afn", TINY)
+    o, r = torch.rand(2, 4, 3, 16, 16) + 0.1, torch.rand(2, 4, 3, 16, 16) + 0.1
+    plain = training_loss("smape", model, rel_l1_weight=0.5)
+    fn = training_loss("smape", model, rel_l1_weight=0.5, first_frame_weight=3.0)
+    expected = plain(o, r, 0.25) + 3.0 * plain(o[:, :1], r[:, :1], 0.0)
+    torch.testing.assert_close(fn(o, r, 0.25), expected)
+    later = o.clone()
+    later[:, 1:] = r[:, 1:]  # later frames exact: the extra term is unchanged
+    extra = fn(later, r, 0.25) - plain(later, r, 0.25)
+    torch.testing.assert_close(extra, 3.0 * plain(o[:, :1], r[:, :1], 0.0))
+    assert training_loss("smape", model, first_frame_weight=0.0) is sequence_loss
+    with pytest.raises(ValueError, match="first_frame_weight"):
+        training_loss("smape", model, first_frame_weight=-1.0)
+
+    affinity = build_model("affinity", Affinity.example_config)
+    affinity._bandwidths = [torch.tensor(2.0)]
+    loss = training_loss("smape", affinity, first_frame_weight=1.0)(o, r, 0.0)
+    first = sequence_loss(o[:, :1], r[:, :1], 0.0)
+    torch.testing.assert_close(loss, sequence_loss(o, r, 0.0) + 1e-5 * 2.0 + first)
