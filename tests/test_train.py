@@ -212,7 +212,8 @@ def test_cli_recipe_options_command_in_meta_and_eta_lines(seq_dir, tmp_path, mon
     args = [str(seq_dir), "-o", str(out), "--steps", "4", "--crop", "16", "--frames", "2",
             "--batch", "1", "--threads", "1", "--loss", "l1-ms-ssim", "--schedule", "onecycle",
             "--warmup", "0.25", "--rotations", "--permute-channels", "--exposure", "auto",
-            "--log-every", "2", "--cache", str(tmp_path / "cache"), "--config",
+            "--log-every", "2", "--cache", str(tmp_path / "cache"), "--rel-l1-weight", "0.1",
+            "--dark-edge-weight", "0.5", "--first-frame-weight", "2", "--config",
             '{"widths": [8, 8], "kernel_size": 3, "refine_width": 8}']  # fmt: skip
     monkeypatch.setattr("sys.argv", ["/some/bin/denoise-train", *args])
     res = runner.invoke(app, args)
@@ -228,10 +229,13 @@ def test_cli_recipe_options_command_in_meta_and_eta_lines(seq_dir, tmp_path, mon
     assert (st["loss"], st["schedule"], st["warmup"]) == ("l1-ms-ssim", "onecycle", 0.25)
     assert st["rotations"] and st["permute"] and st["exposure"] == "auto"
     assert st["cache"] == str(tmp_path / "cache") and st["log_every"] == 2
+    weights = (st["rel_l1_weight"], st["dark_edge_weight"], st["first_frame_weight"])
+    assert weights == (0.1, 0.5, 2.0)
     assert [h[0] for h in meta["loss_history"]] == [2, 4]
     help_text = runner.invoke(app, ["--help"], env={"COLUMNS": "200"}).output
     for option in ("--loss", "--schedule", "--warmup", "--rotations", "--permute-channels",
-                   "--exposure", "--cache", "--stop-at", "--log-every"):  # fmt: skip
+                   "--exposure", "--cache", "--stop-at", "--log-every",
+                   "--first-frame-weight"):  # fmt: skip
         assert option in help_text
     bad = runner.invoke(app, [*args[:3], "--loss", "l7"])
     assert bad.exit_code == 2
