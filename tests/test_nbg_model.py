@@ -374,7 +374,7 @@ def test_history_input_grows_guidenet_from_a_checkpoint_and_exports(tmp_path):
     grown, _ = initial_weights(path, "nbg", {"history_input": True})
     grown.eval()
     assert grown.guide_net.conv1.in_channels == 11
-    assert float(grown.guide_net.conv1.weight[:, 10].abs().max()) == 0.0
+    assert float(grown.guide_net.conv1.weight.detach()[:, 10].abs().max()) == 0.0
     seq = load_sequence(sample_sequences()[0], plain.inputs)
     frames = [{k: torch.from_numpy(v[i : i + 1]) for k, v in seq.buffers.items()} for i in range(3)]
     run = functools.partial(_outputs, frames=frames)
