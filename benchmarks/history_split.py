@@ -13,29 +13,21 @@ from pathlib import Path
 import numpy as np
 
 from rtdenoise.runtime.denoiser import Denoiser
-from rtdenoise.runtime.sequences.compare import model_contender, oidn_contender, walk
-from rtdenoise.runtime.sequences.frames import (
-    find_frames,
-    frame_number,
-    match_references,
-    read_frame,
-    read_reference,
-    shot_cuts,
+from rtdenoise.runtime.sequences.compare import (
+    Contender,
+    load_sequences,
+    model_contender,
+    oidn_contender,
+    walk,
 )
 from rtdenoise.runtime.sequences.metrics import mse_tonemapped, psnr_from_mse
 
 VALIDATION = Path(__file__).resolve().parents[1] / "validation"
 
 
-def split(model: str, folder: Path) -> str:
-    denoiser = Denoiser(model)
-    ours, oidn = model_contender(model, denoiser), oidn_contender("high")
-    paths = find_frames(folder)
+def split(ours: Contender, oidn: Contender, folder: Path) -> str:
     buffers = sorted(set(ours.buffers) | set(oidn.buffers))
-    frames = [read_frame(p, buffers=buffers).buffers for p in paths]
-    refs = [read_reference(r) for r in match_references(paths)]
-    cuts = shot_cuts(folder)
-    starts = {i for i, p in enumerate(paths) if i and frame_number(p) in cuts}
+    [(_, frames, refs, starts)] = load_sequences([folder], buffers)
     a, b = (
         np.array([mse_tonemapped(o, r) for o, r in zip(walk(c, frames, starts), refs, strict=True)])
         for c in (ours, oidn)
@@ -59,8 +51,10 @@ def main() -> None:
     ap.add_argument("model")
     ap.add_argument("--sequence", type=Path, action="append")
     args = ap.parse_args()
+    ours = model_contender(args.model, Denoiser(args.model))
+    oidn = oidn_contender("high")
     for folder in args.sequence or sorted(VALIDATION.glob("seq_*")):
-        print(split(args.model, folder), flush=True)
+        print(split(ours, oidn, folder), flush=True)
 
 
 if __name__ == "__main__":

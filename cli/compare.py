@@ -40,38 +40,6 @@ def _checkpoint(spec: str) -> str | None:
     return None
 
 
-def _sequences(folders: list[Path], buffers: list[str]) -> list[tuple]:
-    """(name, frames, references, cut indices) of each folder with references (default: the
-    bundled ones); frames hold `buffers` (a per-sample model's `samples`: S = 1 from the pixel
-    means when the files have no sample layers); the cuts from its meta.json (a rendered one)."""
-    from rtdenoise.runtime.errors import InputError
-    from rtdenoise.runtime.sequences.frames import (
-        find_frames,
-        frame_number,
-        group_shots,
-        match_references,
-        read_frame,
-        read_reference,
-        shot_cuts,
-    )
-    from rtdenoise.shipped import sample_sequences
-
-    folders = folders or sample_sequences()
-    # named as denoise-run names shots: validation/seq_000 and sequences/seq_000 stay two
-    names = [name for name, _ in group_shots(folders)]
-    out = []
-    for name, folder in zip(names, folders, strict=True):
-        paths = find_frames(folder)
-        refs = match_references(paths)
-        if not all(refs):
-            raise InputError(f"{folder}: every frame needs a reference ref_NNNN.exr for quality")
-        frames = [read_frame(p, buffers=buffers).buffers for p in paths]
-        cuts = shot_cuts(folder)
-        starts = [i for i, p in enumerate(paths) if i and frame_number(p) in cuts]
-        out.append((name, frames, [read_reference(r) for r in refs], starts))
-    return out
-
-
 def _eager(spec: str, device: str):
     """The PyTorch eager contender of a model spec (needs the export extra: torch)."""
     from rtdenoise.runtime.errors import InputError
@@ -238,7 +206,7 @@ def compare_command(
 
             contenders += [oidn_torch_contender(q, device) for q in qualities]
         needed = sorted({b for c in contenders for b in c.buffers})
-        seqs = _sequences(list(sequence or []), needed)
+        seqs = compare.load_sequences(list(sequence or []), needed)
         with progress_status(console, "comparing") as say:
             speed, skipped = compare.speed(contenders, sizes, repeats=repeats, progress=say)
             for left_out in skipped:

@@ -175,9 +175,8 @@ def training_loss(
         "rel_l1_weight": (rel_l1_weight, relative_l1),
         "dark_edge_weight": (dark_edge_weight, dark_edge_l1),
     }
-    if first_frame_weight < 0:
-        raise ValueError(f"first_frame_weight must be >= 0, got {first_frame_weight}")
-    for label, (weight, _) in extra.items():
+    weights = {label: weight for label, (weight, _) in extra.items()}
+    for label, weight in {**weights, "first_frame_weight": first_frame_weight}.items():
         if weight < 0:
             raise ValueError(f"{label} must be >= 0, got {weight}")
     fn = LOSSES[name]

@@ -20,6 +20,7 @@ import statistics
 import time
 from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -328,6 +329,38 @@ def speed(
 
 # the scores of `quality`, each per sequence and as a mean over the sequences
 SCORES = ("psnr", "ssim", "smape", "relmse", "trmae")
+
+
+def load_sequences(folders: Sequence[Path], buffers: Sequence[str]) -> list[tuple]:
+    """(name, frames, references, cut indices) of each folder with references (default: the
+    bundled ones); frames hold `buffers` (a per-sample model's `samples`: S = 1 from the pixel
+    means when the files have no sample layers); the cuts from its meta.json (a rendered one)."""
+    from rtdenoise.shipped import sample_sequences
+
+    from .frames import (
+        find_frames,
+        frame_number,
+        group_shots,
+        match_references,
+        read_frame,
+        read_reference,
+        shot_cuts,
+    )
+
+    folders = list(folders) or sample_sequences()
+    # named as denoise-run names shots: validation/seq_000 and sequences/seq_000 stay two
+    names = [name for name, _ in group_shots(folders)]
+    out = []
+    for name, folder in zip(names, folders, strict=True):
+        paths = find_frames(folder)
+        refs = match_references(paths)
+        if not all(refs):
+            raise InputError(f"{folder}: every frame needs a reference ref_NNNN.exr for quality")
+        frames = [read_frame(p, buffers=list(buffers)).buffers for p in paths]
+        cuts = shot_cuts(folder)
+        starts = [i for i, p in enumerate(paths) if i and frame_number(p) in cuts]
+        out.append((name, frames, [read_reference(r) for r in refs], starts))
+    return out
 
 
 def walk(contender: Contender, frames: Sequence[Frame], cuts: Collection[int] = ()) -> Iterator:
