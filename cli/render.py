@@ -132,6 +132,16 @@ def render(
             "--samples", help="Write S per-sample layers (S 1-spp samples; color = their mean)."
         ),
     ] = 0,
+    references_from: Annotated[
+        Path | None,
+        typer.Option(
+            "--references-from",
+            help="A set rendered before from the same --seed, kinds, size, frames, --spp-ref and "
+            "variant: copy its sequences' references instead of rendering them (they are most "
+            "of the time), e.g. to render that set's inputs again with --samples. Each "
+            "sequence's scene, cameras, exposure and renderer are checked against it.",
+        ),
+    ] = None,
     overwrite: Annotated[
         bool, typer.Option("--overwrite", help="Re-render complete ones.")
     ] = False,
@@ -203,6 +213,10 @@ def render(
         raise typer.BadParameter(f"--variant must be one of {SUPPORTED_VARIANTS}, got {variant!r}")
     if out_dir.exists() and not out_dir.is_dir():
         raise typer.BadParameter(f"{out_dir} exists and is not a folder")
+    if references_from is not None and not references_from.is_dir():
+        raise typer.BadParameter(f"--references-from {references_from}: no such folder")
+    if references_from is not None and references_from.resolve() == out_dir.resolve():
+        raise typer.BadParameter("--references-from must be another folder than OUT_DIR")
     with user_errors(extra="data"):
         used = select_variant(variant, warn=_warn)
 
@@ -223,13 +237,24 @@ def render(
     ]
     if len(todo) < len(indices):
         console.print(f"skipping {len(indices) - len(todo)} complete sequence(s) (use --overwrite)")
+    if references_from is not None:
+        lent = [i for i in todo if (references_from / sequence_name(i) / "meta.json").is_file()]
+        if len(lent) < len(todo):
+            console.print(
+                f"leaving out {len(todo) - len(lent)} sequence(s) not complete in "
+                f"{references_from} (no references to copy yet)"
+            )
+        todo = lent
     start = time.perf_counter()
     if cluster or cluster_address is not None:
-        _render_cluster(out_dir, todo, seed, cfg, used, threads, cluster_address, retries)
+        _render_cluster(
+            out_dir, todo, seed, cfg, used, threads, cluster_address, retries, references_from
+        )
         done = len(todo)
     else:
         set_render_threads(threads)
-        done = _render_local(out_dir, todo, seed, cfg, used, overwrite)
+        with user_errors():
+            done = _render_local(out_dir, todo, seed, cfg, used, overwrite, references_from)
     console.print(
         f"rendered {done} sequence(s) of {frames} frame(s) at {width}x{height}, "
         f"{spp_ref} spp references, variant {used}, in {time.perf_counter() - start:.1f} s "
@@ -239,7 +264,13 @@ def render(
 
 
 def _render_local(
-    out_dir: Path, todo: list[int], seed: int, cfg: RenderConfig, variant: str, overwrite: bool
+    out_dir: Path,
+    todo: list[int],
+    seed: int,
+    cfg: RenderConfig,
+    variant: str,
+    overwrite: bool,
+    references_from: Path | None = None,
 ) -> int:
     """Render `todo` one after the other (each under its lock); returns how many were rendered.
     Progress: rich's bar on a terminal, else one plain line per sequence (rate and ETA)."""
@@ -277,6 +308,7 @@ def _render_local(
                     variant,
                     on_frame=lambda _t: progress.advance(task),
                     on_warning=_warn,
+                    references_from=references_from,
                 )
             finally:
                 release(lock)
@@ -307,6 +339,7 @@ def _render_cluster(
     threads: int | None,
     address: str | None,
     retries: int,
+    references_from: Path | None = None,
 ) -> None:
     """--cluster: one Ray task per sequence; exits non-zero when some failed."""
     from ..datagen.cluster import render_sequences
@@ -324,6 +357,7 @@ def _render_cluster(
             address=address,
             on_progress=callbacks[0],
             on_done=callbacks[1],
+            references_from=references_from,
         )
     for o in outcomes:
         for message in o.warnings:

@@ -32,9 +32,11 @@ def render_index(
     *,
     on_frame: Callable[[int], None] | None = None,
     on_warning: Callable[[str], None] | None = None,
+    references_from: Path | None = None,
 ) -> dict:
     """Render sequence `index` of the job with base seed `seed` (the variant already set);
-    its RuntimeWarnings go to `on_warning`. Returns its meta.json content."""
+    its RuntimeWarnings go to `on_warning`. Returns its meta.json content. `references_from`:
+    a set rendered from the same seeds whose sequence `index` lends its references."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
         meta = render_sequence(
@@ -44,7 +46,10 @@ def render_index(
             variant=variant,
             on_frame=on_frame,
             meta_extra={"job": {"base_seed": seed, "index": index}},
-        )
+            references_from=None if references_from is None else (
+                Path(references_from) / sequence_name(index)
+            ),
+        )  # fmt: skip
     for w in caught:
         if on_warning is not None:
             on_warning(str(w.message))
@@ -69,6 +74,7 @@ def render_task(
     cfg: RenderConfig,
     variant: str,
     threads: int | None,
+    references_from: Path | None = None,
 ) -> str:
     """One sequence in a Ray worker: set the variant there (once per process), render it.
     Returns the variant used (a node without a usable LLVM falls back to scalar_rgb)."""
@@ -90,6 +96,7 @@ def render_task(
         _VARIANT_SET[variant],
         on_frame=lambda _t: context.frame(),
         on_warning=context.warn,
+        references_from=references_from,
     )
     return _VARIANT_SET[variant]
 
@@ -106,12 +113,14 @@ def render_sequences(
     address: str | None = None,
     on_progress: Callable[[Mapping[str, int]], None] | None = None,
     on_done: Callable[[TaskOutcome], None] | None = None,
+    references_from: Path | None = None,
 ) -> list[TaskOutcome]:
     """Render the sequences `indices` of a job as one Ray task each (`threads` CPUs each,
     default 1); outcomes named `seq_XXX`, in that order, the variant used as each result.
     `out_dir` must be on a file system every node shares."""
     args: list[tuple[str, tuple[Any, ...]]] = [
-        (sequence_name(i), (Path(out_dir), i, seed, cfg, variant, threads)) for i in indices
+        (sequence_name(i), (Path(out_dir), i, seed, cfg, variant, threads, references_from))
+        for i in indices
     ]
     return run_tasks(
         render_task,

@@ -46,6 +46,7 @@ from .camera import Camera, orbit_path, project
 from .features import BACKGROUND_ALBEDO, BACKGROUND_DEPTH, canonical_features, override_albedo
 from .kinds import KINDS, generate_scene
 from .paths import cameras_from_spec
+from .reuse import check_source, copy_reference
 from .scene import DIELECTRICS, ID_SCALE, build_scene, conductor_f0, shape_materials
 from .seeds import derive_seed
 
@@ -269,9 +270,14 @@ def render_sequence(
     cameras: list[Camera] | None = None,
     cuts: list[int] | None = None,
     meta_extra: dict | None = None,
+    references_from: str | os.PathLike | None = None,
 ) -> dict:
     """Render one sequence into `out_dir` (created), resuming a killed render of the same job;
     return its meta.json content.
+
+    `references_from`: a complete sequence rendered from the same shots (seed, scene,
+    cameras, renderer, reference spp, exposure; datagen/reuse.py checks) whose `ref_` files
+    are copied instead of rendered, e.g. a set rendered again with `samples`.
 
     The Mitsuba variant must already be set (see `variant.select_variant`). `scene`
     (a `generate_scene`-style description) and `cameras` (with their `cuts`) override the ones
@@ -328,13 +334,20 @@ def render_sequence(
     )
     spp = max(1, cfg.samples)
 
+    started = exposure is not None
     if exposure is None:
         exposure = auto_exposure(pilot, target)
+    spp_ref = requested_ref = reference_spp(cfg.spp_ref, desc.get("kind"))
+    source = None if references_from is None else Path(references_from)
+    if source is not None:  # before anything is written
+        storage = "float16" if cfg.half else "float32"
+        ref_spp = _multijitter_count(mi, requested_ref)
+        check_source(source, job, exposure=exposure, ref_spp=ref_spp, storage=storage)
+    if not started:
         write_json_atomic(out / PARTIAL, {"job": job, "exposure": exposure})
     limit = RADIANCE_LIMIT if cfg.half else None
     replaced = 0
     seeds = []
-    spp_ref = requested_ref = reference_spp(cfg.spp_ref, desc.get("kind"))
     for t, cam in enumerate(cams):
         s_a, s_b, s_ref = (derive_seed(scene_seed, 100 + t, k) for k in range(3))
         seeds.append({"color": s_a, "colorB": s_b, "ref": s_ref})
@@ -356,17 +369,21 @@ def render_sequence(
         else:
             imgs = [_radiance(mi, mi_scene, path, cam, 1, s_a, "independent")[0]]
         imgs.append(_radiance(mi, mi_scene, path, cam, spp, s_b, "independent")[0])
-        ref_img, spp_ref = _radiance(mi, mi_scene, path, cam, requested_ref, s_ref, "multijitter")
-        imgs.append(ref_img)
+        if source is None:
+            ref_img, spp_ref = _radiance(
+                mi, mi_scene, path, cam, requested_ref, s_ref, "multijitter"
+            )
+            imgs.append(ref_img)
         clean = []
         for img in imgs:
             x, n = sanitize(img * exposure, limit)
             replaced += n
             clean.append(x)
+        ref = clean.pop() if source is None else None
         if cfg.samples:
-            noisy_b, ref = clean
+            (noisy_b,) = clean
         else:
-            noisy, noisy_b, ref = clean
+            noisy, noisy_b = clean
         a = _aovs(mi, mi_scene, aov, cam)
         ids = decode_ids(_aovs(mi, id_scene, aov_id, cam)["id"][..., 0])
         hit = ids > 0
@@ -375,10 +392,13 @@ def render_sequence(
         feats = canonical_features(albedo, a["nn"], a["pp"], hit, cam, prev)
         channels = {**_rgb("", noisy), **_rgb("colorB.", noisy_b), **feats, **sample_layers}
         write_exr(out / f"frame_{t:04d}.exr", channels, half=cfg.half)
-        write_exr(out / f"ref_{t:04d}.exr", _rgb("", ref), half=cfg.half)
+        if ref is None:
+            copy_reference(source / f"ref_{t:04d}.exr", out / f"ref_{t:04d}.exr")
+        else:
+            write_exr(out / f"ref_{t:04d}.exr", _rgb("", ref), half=cfg.half)
         if on_frame is not None:
             on_frame(t)
-    if keep and spp_ref == requested_ref:  # every frame kept: the sampler's count, as rendered
+    if source is not None or (keep and spp_ref == requested_ref):  # the sampler's count
         spp_ref = _multijitter_count(mi, requested_ref)
     if replaced:
         warnings.warn(
@@ -406,6 +426,7 @@ def render_sequence(
         "exposure": exposure,
         "nonfinite_replaced": replaced,
         "resumed_frames": sorted(keep),
+        **({"references_from": str(source)} if source is not None else {}),
         "redraws": redraws,
         "seeds": seeds,
         "cameras": [
