@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..runtime.errors import InputError
 from ..runtime.sequences.atomic import write_text_atomic
 from ..runtime.sequences.exr import read_exr_header, write_exr
 from ..runtime.sequences.samples import DEFAULT_SAMPLE_FEATURES, sample_channels
@@ -335,14 +336,20 @@ def render_sequence(
     spp = max(1, cfg.samples)
 
     started = exposure is not None
-    if exposure is None:
-        exposure = auto_exposure(pilot, target)
     spp_ref = requested_ref = reference_spp(cfg.spp_ref, desc.get("kind"))
     source = None if references_from is None else Path(references_from)
-    if source is not None:  # before anything is written
+    if source is not None:  # before anything is written; the references' exposure is ours
         storage = "float16" if cfg.half else "float32"
         ref_spp = _multijitter_count(mi, requested_ref)
-        check_source(source, job, exposure=exposure, ref_spp=ref_spp, storage=storage)
+        lent = check_source(source, job, ref_spp=ref_spp, storage=storage)["exposure"]
+        if started and exposure != lent:
+            raise InputError(
+                f"{out}: rendered so far with exposure {exposure}, its references' source "
+                f"{source} has {lent}: render it again with --overwrite"
+            )
+        exposure = float(lent)
+    if exposure is None:
+        exposure = auto_exposure(pilot, target)
     if not started:
         write_json_atomic(out / PARTIAL, {"job": job, "exposure": exposure})
     limit = RADIANCE_LIMIT if cfg.half else None

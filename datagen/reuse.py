@@ -22,16 +22,11 @@ _CAMERA_ONLY_META = ("frame", "reset")  # meta.json camera fields the job's came
 _CAMERA_ONLY_JOB = ("width", "height")  # and the other way round
 
 
-def check_source(
-    folder: Path,
-    job: dict,
-    *,
-    exposure: float,
-    ref_spp: int,
-    storage: str,
-) -> dict:
+def check_source(folder: Path, job: dict, *, ref_spp: int, storage: str) -> dict:
     """The meta.json of `folder` if its references are this render's: InputError naming the
-    first field that differs (scene, cameras, cuts, resolution, renderer, spp, exposure)."""
+    first field that differs (scene, cameras, cuts, resolution, renderer, spp, storage). The
+    exposure is not compared: the render takes the source's (`meta["exposure"]`), since the
+    references were scaled by it (a pilot render can differ in its last digits between runs)."""
     meta_path = folder / "meta.json"
     if not meta_path.is_file():
         raise InputError(f"{folder}: no meta.json, not a complete sequence: no references to reuse")
@@ -51,7 +46,6 @@ def check_source(
         "max_depth": (renderer.get("integrator", {}).get("max_depth"), cfg["max_depth"]),
         "reference spp": (meta.get("spp", {}).get("ref"), ref_spp),
         "storage": (meta.get("storage"), storage),
-        "exposure": (meta.get("exposure"), exposure),
     }
     for name, (theirs, ours) in fields.items():
         if theirs != ours:

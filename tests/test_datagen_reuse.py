@@ -72,6 +72,26 @@ def test_reused_references_are_the_ones_a_full_render_makes(tmp_path, cfg, sourc
     assert not list(tmp_path.glob(".*tmp*"))
 
 
+def test_the_source_lends_its_exposure(tmp_path, cfg, source, per_sample):
+    """The references were scaled by the source's exposure (its pilot render can differ in the
+    last digits between runs), so the inputs are scaled by it too."""
+    import shutil
+
+    lender = tmp_path / "lender"
+    shutil.copytree(source, lender)
+    meta = json.loads((lender / "meta.json").read_text())
+    meta["exposure"] *= 2.0
+    (lender / "meta.json").write_text(json.dumps(meta))
+    out = _render(tmp_path / "out", dataclasses.replace(cfg, samples=2), references_from=lender)
+    assert out["exposure"] == meta["exposure"]
+    ours, theirs = (
+        read_exr(tmp_path / "out" / "frame_0001.exr"),
+        read_exr(per_sample / "frame_0001.exr"),
+    )
+    np.testing.assert_allclose(ours["sample1.R"], 2.0 * theirs["sample1.R"], rtol=2e-3, atol=1e-6)
+    np.testing.assert_array_equal(ours["depth.Z"], theirs["depth.Z"])
+
+
 def test_a_source_of_other_shots_is_refused_naming_what_differs(tmp_path, cfg, source):
     other = dataclasses.replace(cfg, spp_ref=32)
     with pytest.raises(InputError, match="reference spp"):
