@@ -23,6 +23,7 @@ from ..datagen.kinds import allowed_kinds, describe_kinds
 from ..datagen.render import RenderConfig
 from ..datagen.shards import parse_shard, release, shard_indices, try_lock
 from ..datagen.variant import SUPPORTED_VARIANTS, select_variant
+from ..runtime.errors import InputError
 from .cluster import (
     DEFAULT_RETRIES,
     ClusterAddressOption,
@@ -33,7 +34,9 @@ from .cluster import (
 )
 from .common import (
     CONTEXT_SETTINGS,
+    EXIT_BAD_INPUT,
     VersionOption,
+    fail,
     one_line_warnings,
     parse_size,
     user_errors,
@@ -139,7 +142,8 @@ def render(
             help="A set rendered before from the same --seed, kinds, size, frames, --spp-ref and "
             "variant: copy its sequences' references instead of rendering them (they are most "
             "of the time), e.g. to render that set's inputs again with --samples. Each "
-            "sequence's scene, cameras, exposure and renderer are checked against it.",
+            "sequence's scene, cameras, spp and renderer are checked against it, and its "
+            "exposure is taken.",
         ),
     ] = None,
     overwrite: Annotated[
@@ -253,8 +257,10 @@ def render(
         done = len(todo)
     else:
         set_render_threads(threads)
-        with user_errors():
+        try:
             done = _render_local(out_dir, todo, seed, cfg, used, overwrite, references_from)
+        except InputError as exc:  # a source whose shots are not these (--references-from)
+            fail(exc, EXIT_BAD_INPUT)
     console.print(
         f"rendered {done} sequence(s) of {frames} frame(s) at {width}x{height}, "
         f"{spp_ref} spp references, variant {used}, in {time.perf_counter() - start:.1f} s "
