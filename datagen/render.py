@@ -340,8 +340,8 @@ def render_sequence(
     source = None if references_from is None else Path(references_from)
     if source is not None:  # before anything is written; the references' exposure is ours
         storage = "float16" if cfg.half else "float32"
-        ref_spp = _multijitter_count(mi, requested_ref)
-        lent = check_source(source, job, ref_spp=ref_spp, storage=storage)["exposure"]
+        spp_ref = _multijitter_count(mi, requested_ref)  # what the copied references hold
+        lent = check_source(source, job, ref_spp=spp_ref, storage=storage)["exposure"]
         if started and exposure != lent:
             raise InputError(
                 f"{out}: rendered so far with exposure {exposure}, its references' source "
@@ -405,7 +405,7 @@ def render_sequence(
             write_exr(out / f"ref_{t:04d}.exr", _rgb("", ref), half=cfg.half)
         if on_frame is not None:
             on_frame(t)
-    if source is not None or (keep and spp_ref == requested_ref):  # the sampler's count
+    if keep and spp_ref == requested_ref:  # every frame kept: the sampler's count, as rendered
         spp_ref = _multijitter_count(mi, requested_ref)
     if replaced:
         warnings.warn(
