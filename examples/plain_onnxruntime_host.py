@@ -1,7 +1,8 @@
 """Drive an exported rtdenoise model with nothing but onnxruntime and numpy.
 
 This is the contract v1 loop (docs/contract.md, "Driving a model") that a host in any language
-implements: read the metadata, pad every buffer to the model's multiple, zero the state and set
+implements: read the metadata, pad every buffer (the model's edge margin on every side, then up
+to its multiple), zero the state and set
 `reset = 1` on the first frame, at a camera cut and on a size change, feed `state_next.*` back as
 `state.*`, crop the output. A per-sample model (affinity) reads the rank-5 `samples` buffer,
 (S, C, H, W) per frame: its C features are the buffers the model's config lists under
@@ -28,10 +29,11 @@ SAMPLES = "samples"  # the rank-5 per-sample buffer (docs/contract.md, "Buffers"
 DEFAULT_SAMPLE_FEATURES = ("color", "albedo", "normal", "depth")  # when the config names none
 
 
-def pad_edge(a: np.ndarray, hp: int, wp: int) -> np.ndarray:
-    """Repeat the last row and column of `a` (..., H, W) up to (..., hp, wp)."""
+def pad_edge(a: np.ndarray, hp: int, wp: int, margin: int = 0) -> np.ndarray:
+    """Repeat the edge rows and columns of `a` (..., H, W): `margin` on the top and left, the
+    rest up to (..., hp, wp) on the bottom and right."""
     h, w = a.shape[-2:]
-    widths = [(0, 0)] * (a.ndim - 2) + [(0, hp - h), (0, wp - w)]
+    widths = [(0, 0)] * (a.ndim - 2) + [(margin, hp - h - margin), (margin, wp - w - margin)]
     return np.pad(a, widths, mode="edge")
 
 
@@ -48,6 +50,7 @@ class PlainHost:
         # the frame (e.g. the weights of a model that learns while it runs)
         self.state = json.loads(meta["rtdenoise.state"])
         self.pad = int(meta["rtdenoise.pad_multiple"])
+        self.margin = int(meta.get("rtdenoise.edge_margin", "0"))  # optional: 0 if absent
         config = json.loads(meta.get("rtdenoise.config", "{}"))
         self.sample_features = config.get("sample_features", DEFAULT_SAMPLE_FEATURES)
         self.has_reset = any(i.name == "reset" for i in self.session.get_inputs())
@@ -75,7 +78,8 @@ class PlainHost:
         NaN/Inf. Returns (3, H, W)."""
         frame = self.with_samples(frame)
         h, w = frame[self.buffers[0]].shape[-2:]
-        hp, wp = -(-h // self.pad) * self.pad, -(-w // self.pad) * self.pad
+        m, pad = self.margin, self.pad
+        hp, wp = -(-(h + 2 * m) // pad) * pad, -(-(w + 2 * m) // pad) * pad
         first = self.history is None or (h, w) != self.size
         if first:
             self.history = {
@@ -86,13 +90,15 @@ class PlainHost:
                 for s in self.state
             }
             self.size = (h, w)
-        feeds = {b: pad_edge(np.asarray(frame[b], np.float32), hp, wp)[None] for b in self.buffers}
+        feeds = {
+            b: pad_edge(np.asarray(frame[b], np.float32), hp, wp, m)[None] for b in self.buffers
+        }
         if self.has_reset:
             feeds["reset"] = np.array(1.0 if first else 0.0, np.float32)
         feeds |= {f"state.{name}": value for name, value in self.history.items()}
         output, *state = self.session.run(self.outputs, feeds)
         self.history = {s["name"]: v for s, v in zip(self.state, state, strict=True)}
-        return output[0, :, :h, :w]
+        return output[0, :, m : m + h, m : m + w]
 
 
 def synthetic_frame(

@@ -19,7 +19,13 @@ from typing import Any, ClassVar
 import torch
 from torch import nn
 
-from rtdenoise.runtime.contract import BUFFER_CHANNELS, Declaration, RuntimeOption, StateSpec
+from rtdenoise.runtime.contract import (
+    BUFFER_CHANNELS,
+    MAX_EDGE_MARGIN,
+    Declaration,
+    RuntimeOption,
+    StateSpec,
+)
 
 from .losses import sequence_loss
 
@@ -43,9 +49,15 @@ PADDINGS = ("zeros", "replicate")  # the `padding` config key of afn, affinity a
 
 
 def check_padding(config: FamilyConfig) -> None:
-    """`validate` helper: the config's `padding` is one of PADDINGS."""
+    """`validate` helper: the config's `padding` is one of PADDINGS and its `edge_margin` an
+    integer in 0..MAX_EDGE_MARGIN."""
     if config.padding not in PADDINGS:
         raise config.fail(f"padding must be one of {', '.join(PADDINGS)}, got {config.padding!r}")
+    margin = config.edge_margin
+    if isinstance(margin, bool) or not isinstance(margin, int):
+        raise config.fail(f"edge_margin must be an integer, got {margin!r}")
+    if not 0 <= margin <= MAX_EDGE_MARGIN:
+        raise config.fail(f"edge_margin must be in 0..{MAX_EDGE_MARGIN}, got {margin}")
 
 
 def pad_convs(module: nn.Module, mode: str) -> None:
@@ -111,7 +123,8 @@ class DenoiserModel(nn.Module):
     """Base class of the denoiser families.
 
     Subclasses set `family`, `config_class`, `example_config`, `inputs` (canonical buffer
-    names they read), `state_specs`, `pad_multiple` and `input_note`, keep their config in
+    names they read), `state_specs`, `pad_multiple` and `input_note` (and `edge_margin` where
+    it is not 0), keep their config in
     `self.cfg`, and implement `forward` (and `loss` when the paper trains with another loss).
     """
 
@@ -123,6 +136,11 @@ class DenoiserModel(nn.Module):
     inputs: tuple[str, ...] = ()
     state_specs: tuple[StateSpec, ...] = ()
     pad_multiple: int = 1
+    # Pixels of the frame's edge repeated on every side before `forward` and cropped from its
+    # output (FrameLoop, the runtime; contract key `rtdenoise.edge_margin`): for weights that
+    # smear what lies at the frame's edge. The families with a `padding` key read their
+    # config's `edge_margin`.
+    edge_margin: int = 0
     input_note: str = ""
     # Scalars a runtime may change per session (e.g. a kernel size), each declared once with
     # `add_runtime_option`: the float32 buffer `option_<name>` of the model, exported as the
@@ -198,6 +216,7 @@ class DenoiserModel(nn.Module):
             pad_multiple=int(self.pad_multiple),
             note=self.input_note,
             options=tuple(self.runtime_options),
+            edge_margin=int(self.edge_margin),
         )
 
 

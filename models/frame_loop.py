@@ -1,6 +1,7 @@
 """`FrameLoop`: run a model frame after frame the way the runtime executor runs its export.
 
-Per frame: replicate-pad H and W (bottom, right) to the model's `pad_multiple`, run with the
+Per frame: replicate-pad H and W by the model's `edge_margin` on every side, then (bottom, right)
+to its `pad_multiple`, run with the
 state carried from the previous frame (zero state and reset = 1 on the first frame, after
 `reset()` and when the frame size changes), crop the output back. Training (clips, with
 gradients), validation, the export check and the benchmarks all use this one loop (after
@@ -23,15 +24,17 @@ from .device import model_device
 Frame = Mapping[str, "torch.Tensor | np.ndarray"]
 
 
-def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
-    """Replicate-pad the last two axes of (N, C, H, W) `x` (or (N, S, C, H, W)) up to
-    multiples of `multiple`."""
+def pad_to_multiple(x: torch.Tensor, multiple: int, margin: int = 0) -> torch.Tensor:
+    """Replicate-pad the last two axes of (N, C, H, W) `x` (or (N, S, C, H, W)): `margin`
+    pixels on every side, then up to multiples of `multiple` (bottom, right)."""
     h, w = x.shape[-2:]
-    ph, pw = (-h) % multiple, (-w) % multiple
-    if not (ph or pw):
+    ph, pw = (-(h + 2 * margin)) % multiple, (-(w + 2 * margin)) % multiple
+    if not (ph or pw or margin):
         return x
     flat = x.reshape(-1, *x.shape[-3:])  # replicate padding takes 4-D tensors
-    return F.pad(flat, (0, pw, 0, ph), mode="replicate").reshape(*x.shape[:-2], h + ph, w + pw)
+    pads = (margin, margin + pw, margin, margin + ph)
+    padded = F.pad(flat, pads, mode="replicate")
+    return padded.reshape(*x.shape[:-2], *padded.shape[-2:])
 
 
 class FrameLoop:
@@ -67,18 +70,18 @@ class FrameLoop:
         buffers = self._tensors(frame)
         first = buffers[self.model.inputs[0]]
         (n, (h, w)), device = (first.shape[0], first.shape[-2:]), first.device
-        m = self.model.pad_multiple
+        m, margin = self.model.pad_multiple, self.model.edge_margin
         key = (n, h, w, device)
         if reset or self.state is None or key != self._key:
-            hp, wp = -(-h // m) * m, -(-w // m) * m
+            hp, wp = -(-(h + 2 * margin) // m) * m, -(-(w + 2 * margin) // m) * m
             self.state = self.model.initial_state(n, hp, wp, device=device)
             if self.outer:
                 self.state = self.model.training_state(self.state)
             self._key, reset = key, True
-        padded = {k: pad_to_multiple(v, m) for k, v in buffers.items()}
+        padded = {k: pad_to_multiple(v, m, margin) for k, v in buffers.items()}
         flag = torch.tensor(1.0 if reset else 0.0, device=device)
         output, self.state = self.model(padded, self.state, flag)
-        return output[..., :h, :w]
+        return output[..., margin : margin + h, margin : margin + w]
 
     def run(self, frames: Iterable[Frame]) -> Iterator[torch.Tensor]:
         """Outputs of consecutive frames of one sequence (starts a new history)."""

@@ -3,7 +3,8 @@
 Buffers come planar, (C, H, W) (or batched, (1, C, H, W); rank 5 `samples`: (S, C, H, W) or
 (1, S, C, H, W)), or interleaved, (H, W, C) with an optional alpha channel that is ignored
 ((H, W) for one channel), in float32 or float16 (other real types are converted). The model
-reads them planar float32, batched, replicate-padded to its pad multiple. The output follows
+reads them planar float32, batched, replicate-padded by its edge margin on every side and
+to its pad multiple. The output follows
 the layout of `color`, or fills the caller's `out` (float16 clamped to the half range).
 """
 
@@ -95,21 +96,25 @@ def planar_frame(
     return converted, owned, (int(size[0]), int(size[1]))
 
 
-def padded_size(size: tuple[int, int], multiple: int) -> tuple[int, int]:
-    """(H, W) rounded up to multiples of `multiple`."""
-    h, w = size
+def padded_size(size: tuple[int, int], multiple: int, margin: int = 0) -> tuple[int, int]:
+    """(H, W) with `margin` pixels on every side, rounded up to multiples of `multiple`."""
+    h, w = size[0] + 2 * margin, size[1] + 2 * margin
     return -(-h // multiple) * multiple, -(-w // multiple) * multiple
 
 
-def pad_edge(a: np.ndarray, hp: int, wp: int) -> np.ndarray:
-    """Replicate-pad the last two axes of `a` to (hp, wp) (bottom and right); `a` if no pad."""
+def pad_edge(a: np.ndarray, hp: int, wp: int, margin: int = 0) -> np.ndarray:
+    """Replicate-pad the last two axes of `a` to (hp, wp): `margin` pixels on the top and left,
+    the rest on the bottom and right (the frame's edge pixels repeated); `a` if no pad."""
     h, w = a.shape[-2:]
     if (h, w) == (hp, wp):
         return a
+    m = margin
     out = np.empty(a.shape[:-2] + (hp, wp), np.float32)
-    out[..., :h, :w] = a
-    out[..., :h, w:] = a[..., :, w - 1 : w]
-    out[..., h:, :] = out[..., h - 1 : h, :]
+    out[..., m : m + h, m : m + w] = a
+    out[..., m : m + h, :m] = a[..., :, :1]
+    out[..., m : m + h, m + w :] = a[..., :, w - 1 : w]
+    out[..., :m, :] = out[..., m : m + 1, :]
+    out[..., m + h :, :] = out[..., m + h - 1 : m + h, :]
     return out
 
 

@@ -10,6 +10,9 @@ outputs `output` ([1, 3, H, W]) plus `state_next.<name>` for every state input. 
 - `StateSpec`: one temporal tensor, as models declare it and the metadata lists it;
 - `RuntimeOption`: a scalar a runtime may change per session (optional key `rtdenoise.options`,
   the overridable initializer `option.<name>`), e.g. a kernel size;
+- edge margin (optional key `rtdenoise.edge_margin`): pixels of the frame's edge repeated on
+  every side before the graph and cropped from its output, for a model whose convolutions
+  smear what lies at the frame's edge (docs/contract.md, "Padding");
 - `Declaration`: what a model declares (family, config, buffers, state, pad multiple, note):
   its `metadata()` is what the exporter writes, its graph input/output names the wrapper's;
 - `parse_contract` / `contract_from_session`: check metadata + graph I/O, give a `Contract`
@@ -38,6 +41,8 @@ KEY_STATE = PREFIX + "state"
 KEY_PAD = PREFIX + "pad_multiple"
 KEY_ONLINE = PREFIX + "online"
 KEY_OPTIONS = PREFIX + "options"
+KEY_MARGIN = PREFIX + "edge_margin"
+MAX_EDGE_MARGIN = 256  # the largest `rtdenoise.edge_margin` read (and a config may set)
 REQUIRED_KEYS = (KEY_CONTRACT, KEY_FAMILY, KEY_CONFIG, KEY_INPUTS, KEY_STATE, KEY_PAD)
 
 RESET = "reset"
@@ -178,6 +183,7 @@ class Declaration:
     note: str = ""
     online: Mapping[str, Any] | None = None  # `rtdenoise.online`: how the model learns
     options: tuple[RuntimeOption, ...] = ()
+    edge_margin: int = 0  # `rtdenoise.edge_margin`: edge pixels repeated on every side
 
     def input_names(self) -> list[str]:
         """Graph inputs in order: buffers, `reset`, then `state.<name>`."""
@@ -204,6 +210,8 @@ class Declaration:
             extra[KEY_ONLINE] = json.dumps(dict(self.online))
         if self.options:
             extra[KEY_OPTIONS] = json.dumps([o.to_json() for o in self.options])
+        if self.edge_margin:
+            extra[KEY_MARGIN] = str(self.edge_margin)
         return extra
 
 
@@ -239,6 +247,7 @@ class Contract:
     online: dict[str, Any] | None = None  # parsed `rtdenoise.online` (docs/contract.md)
     metadata: dict[str, str] = field(default_factory=dict)
     options: tuple[RuntimeOption, ...] = ()
+    edge_margin: int = 0  # edge pixels repeated on every side before the graph, then cropped
 
     @property
     def buffer_names(self) -> tuple[str, ...]:
@@ -265,6 +274,7 @@ class Contract:
             self.note,
             self.online,
             self.options,
+            self.edge_margin,
         )
 
 
@@ -323,6 +333,7 @@ def parse_contract(
     if pad < 1:
         raise fail(f"{KEY_PAD} must be >= 1, got {pad}")
     state = _parse_state(load(KEY_STATE), pad, fail)
+    margin = _parse_margin(metadata[KEY_MARGIN], fail) if KEY_MARGIN in metadata else 0
     options = _parse_options(load(KEY_OPTIONS), fail) if KEY_OPTIONS in metadata else ()
 
     graph_in = {t.name: t for t in inputs}
@@ -388,7 +399,18 @@ def parse_contract(
         online=_parse_online(load(KEY_ONLINE), state, fail) if KEY_ONLINE in metadata else None,
         metadata=dict(metadata),
         options=options,
+        edge_margin=margin,
     )
+
+
+def _parse_margin(raw: str, fail) -> int:
+    try:
+        margin = int(raw.strip())
+    except ValueError:
+        raise fail(f"{KEY_MARGIN} is {raw!r}, not an integer") from None
+    if not 0 <= margin <= MAX_EDGE_MARGIN:
+        raise fail(f"{KEY_MARGIN} must be in 0..{MAX_EDGE_MARGIN}, got {margin}")
+    return margin
 
 
 def _parse_state(raw: Any, pad: int, fail) -> tuple[StateSpec, ...]:

@@ -2,13 +2,14 @@
 frame (docs/architecture.md, "Runtime"; docs/contract.md).
 
 Per frame: the buffers made planar float32 (`arrays`), passed through the input guard (`guard`:
-NaN/Inf replaced, ranges clamped, colour outliers removed, all counted) and replicate-padded to
-the model's `pad_multiple`; the run, with the state fed in and the next state written
-(`state`: ping-pong buffers, bound through ONNX Runtime's IO binding by default); the output
-cropped (NaN/Inf in it replaced by 0 and counted). State is zero-filled and `reset` = 1 on the
-first frame, after `reset()`, when the resolution changes, on a frame whose guide buffers are
-missing (zero everywhere) and on the frame after it or after a non-finite output
-(docs/reliability.md). The session, its providers, threads and fast kernels: `session`.
+NaN/Inf replaced, ranges clamped, colour outliers removed, all counted) and replicate-padded:
+the model's `edge_margin` on every side (if it declares one), then to its `pad_multiple`; the
+run, with the state fed in and the next state written (`state`: ping-pong buffers, bound
+through ONNX Runtime's IO binding by default); the output cropped (NaN/Inf in it replaced by 0
+and counted). State is zero-filled and `reset` = 1 on the first frame, after `reset()`, when
+the resolution changes, on a frame whose guide buffers are missing (zero everywhere) and on the
+frame after it or after a non-finite output (docs/reliability.md). The session, its providers,
+threads and fast kernels: `session`.
 
 Fast kernels run as custom ops inside `session.run`; an exception there must not unwind through
 ONNX Runtime, so the run is wrapped in `bridge.raise_kernel_errors()` (the kernel's error is
@@ -201,6 +202,11 @@ class Denoiser:
         return self._contract.pad_multiple
 
     @property
+    def edge_margin(self) -> int:
+        """Pixels of the frame's edge repeated on every side before the model (then cropped)."""
+        return self._contract.edge_margin
+
+    @property
     def options(self) -> dict[str, float]:
         """Every run-time option of the model with the value this session uses."""
         values = {o.name: o.default for o in self._contract.options}
@@ -238,6 +244,7 @@ class Denoiser:
         return (
             f"Denoiser({self.source!r}, family={self.family!r}, buffers={self.required_buffers}, "
             f"state={[s.name for s in self.state_specs]}, pad_multiple={self.pad_multiple}, "
+            f"edge_margin={self.edge_margin}, "
             f"providers={self.providers}, fast_kernels={self.fast_kernels})"
         )
 
@@ -324,7 +331,8 @@ class Denoiser:
         self._frame_index += 1
         self.frames_processed += 1
         cropped = (hp, wp) != (h, w)
-        frame = result[0, :, :h, :w] if cropped else result[0]
+        m = self.edge_margin
+        frame = result[0, :, m : m + h, m : m + w] if cropped else result[0]
         bad = replace_nonfinite("output", frame)  # in place: `result` is this call's own array
         if bad is not None:
             report.output_nonfinite = int(bad.sum())
@@ -356,14 +364,14 @@ class Denoiser:
         arrays, owned, size = planar_frame(
             self._contract.buffers, buffers, channels_last, self.family
         )
-        hp, wp = padded_size(size, self.pad_multiple)
+        hp, wp = padded_size(size, self.pad_multiple, self.edge_margin)
         if self._static_hw is not None and (hp, wp) != self._static_hw:
             sh, sw = self._static_hw
             raise InputError(
                 f"model takes {sh}x{sw} frames only, got {size[0]}x{size[1]} (padded {hp}x{wp})"
             )
         guarded, report = guard_buffers(arrays, owned)  # never modifies the caller's arrays
-        feeds = {name: pad_edge(a, hp, wp) for name, a in guarded.items()}
+        feeds = {name: pad_edge(a, hp, wp, self.edge_margin) for name, a in guarded.items()}
         return feeds, size, (hp, wp), report
 
     def _start_history(self, size: tuple[int, int], padded: tuple[int, int]) -> None:

@@ -212,9 +212,11 @@ def samples_model() -> bytes:
 # -- numpy references ---------------------------------------------------------------------
 
 
-def _pad_edge(x: np.ndarray, m: int) -> np.ndarray:
-    h, w = x.shape[-2:]
-    return np.pad(x, ((0, 0), (0, -h % m), (0, -w % m)), mode="edge")
+def _pad_edge(x: np.ndarray, m: int, margin: int = 0) -> np.ndarray:
+    """`margin` edge pixels on every side, then the bottom and right up to multiples of m."""
+    h, w = (n + 2 * margin for n in x.shape[-2:])
+    widths = ((0, 0), (margin, margin + -h % m), (margin, margin + -w % m))
+    return np.pad(x, widths, mode="edge")
 
 
 def _box3(x: np.ndarray) -> np.ndarray:
@@ -233,20 +235,22 @@ def _up(x: np.ndarray, k: int) -> np.ndarray:
 
 
 class EmaReference:
-    """numpy EMA model over padded frames; `step` returns the cropped (3, H, W) output."""
+    """numpy EMA model over padded frames (`margin`: edge pixels repeated on every side first,
+    as `rtdenoise.edge_margin` asks); `step` returns the cropped (3, H, W) output."""
 
     pad = 4
 
-    def __init__(self) -> None:
+    def __init__(self, margin: int = 0) -> None:
         self.acc: np.ndarray | None = None
+        self.margin = margin
 
     def step(self, color: np.ndarray, albedo: np.ndarray, reset: bool) -> np.ndarray:
-        h, w = color.shape[-2:]
-        color, albedo = _pad_edge(color, self.pad), _pad_edge(albedo, self.pad)
+        (h, w), m = color.shape[-2:], self.margin
+        color, albedo = _pad_edge(color, self.pad, m), _pad_edge(albedo, self.pad, m)
         cur = 0.75 * _box3(color) + 0.25 * _up(_pool(color, 4), 4)
         hist = cur if reset or self.acc is None else self.acc
         self.acc = 0.5 * cur + 0.5 * hist
-        return (self.acc * albedo)[:, :h, :w]
+        return (self.acc * albedo)[:, m : m + h, m : m + w]
 
 
 class HalfresReference:

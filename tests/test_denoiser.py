@@ -103,6 +103,31 @@ def test_resolution_change_resets(ema: bytes, probe: bytes, io_binding: bool) ->
 
 
 @pytest.mark.parametrize("io_binding", [True, False])
+def test_edge_margin_repeats_the_edge_on_every_side_and_crops_it(io_binding: bool) -> None:
+    """`rtdenoise.edge_margin` = 3: every buffer gets 3 edge pixels on every side, then the
+    bottom and right up to the pad multiple (13 x 17 -> 19 x 23 -> 20 x 24, the state's size),
+    and the output is the frame's own 13 x 17 from (3, 3); the numpy reference does the same
+    by np.pad. Without the margin the same model differs at the edge (the box blur and the 4 x 4
+    pooling grid see other pixels), so the test tells a margin that was not applied, or
+    cropped from the wrong corner."""
+    model = ema_model(metadata={"rtdenoise.edge_margin": "3"})
+    den = Denoiser(model, fast_kernels=False, io_binding=io_binding)
+    assert den.edge_margin == 3 and "edge_margin=3" in repr(den)
+    assert den.contract.declaration.edge_margin == 3
+    ref, plain = EmaReference(margin=3), EmaReference()
+    for i, (color, albedo) in enumerate(
+        zip(frames(6, 13, 17), albedo_frames(6, 13, 17, 1), strict=True)
+    ):
+        out = den.process({"color": color, "albedo": albedo})
+        assert out.shape == (3, 13, 17) and out.flags.c_contiguous
+        np.testing.assert_allclose(out, ref.step(color, albedo, i == 0), **TOL)
+        unpadded = plain.step(color, albedo, i == 0)
+    assert den.state_value("acc").shape == (1, 3, 20, 24)
+    assert not np.allclose(out, unpadded, **TOL)
+    assert Denoiser(ema_model(), fast_kernels=False).edge_margin == 0  # the key is optional
+
+
+@pytest.mark.parametrize("io_binding", [True, False])
 def test_odd_size_padded_and_cropped(ema: bytes, io_binding: bool) -> None:
     den = Denoiser(ema, fast_kernels=False, io_binding=io_binding)
     ref = EmaReference()
@@ -264,6 +289,9 @@ def _meta_state(**entry) -> dict[str, str]:
         ({"metadata": {"rtdenoise.state": "[]"}}, "graph input 'state.acc' is not listed"),
         ({"metadata": {"rtdenoise.config": "{oops"}}, "rtdenoise.config is not valid JSON"),
         ({"metadata": {"rtdenoise.pad_multiple": "x"}}, "pad_multiple is 'x', not an integer"),
+        ({"metadata": {"rtdenoise.edge_margin": "8px"}}, "edge_margin is '8px', not an integer"),
+        ({"metadata": {"rtdenoise.edge_margin": "-1"}}, "edge_margin must be in 0..256, got -1"),
+        ({"metadata": {"rtdenoise.edge_margin": "300"}}, "edge_margin must be in 0..256, got 3"),
         ({"metadata": {"rtdenoise.inputs": '{"buffers": ["color"]}'}}, "input 'albedo' is nei"),
         (
             {"metadata": {"rtdenoise.inputs": '{"buffers": ["color", "albedo", "normal"]}'}},

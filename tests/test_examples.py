@@ -127,3 +127,25 @@ def test_plain_host_restarts_on_a_size_change():
     for t, (h, w) in enumerate([(24, 40), (24, 40), (33, 21), (33, 21)]):
         frame = plain.synthetic_frame(host.buffers, t, h, w)
         np.testing.assert_allclose(host.process(frame), den.process(frame), rtol=1e-6, atol=1e-6)
+
+
+def test_plain_host_applies_an_edge_margin_as_denoiser_does(tmp_path):
+    """demo:afn (pad multiple 16) given `rtdenoise.edge_margin` = 5: the host pads 5 edge
+    pixels on every side, then to the multiple, and crops from (5, 5), as `Denoiser` does;
+    both differ from the same model without the margin."""
+    import onnx
+
+    plain = load_example("plain_onnxruntime_host")
+    proto = onnx.load(str(MODELS_DIR / "afn.onnx"))
+    proto.metadata_props.add(key="rtdenoise.edge_margin", value="5")
+    path = tmp_path / "afn_margin.onnx"
+    onnx.save(proto, str(path))
+    host, den = plain.PlainHost(str(path)), Denoiser(path, fast_kernels=True)
+    without = Denoiser(MODELS_DIR / "afn.onnx", fast_kernels=True)
+    assert host.margin == den.edge_margin == 5 and without.edge_margin == 0
+    for t in range(3):
+        frame = plain.synthetic_frame(host.buffers, t, 30, 37)
+        ours, theirs = host.process(frame), den.process(frame)
+        np.testing.assert_allclose(ours, theirs, rtol=1e-5, atol=1e-5)
+    assert den.state_value("ta").shape[-2:] == (48, 48)  # 30 + 10, 37 + 10 -> multiples of 16
+    assert float(np.abs(theirs - without.process(frame)).max()) > 1e-3

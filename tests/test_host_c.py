@@ -127,13 +127,11 @@ def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path, pollu
     assert res.returncode == 0, res.stderr
     *guarded, last = res.stdout.strip().splitlines()
     assert last == f"{len(frames)} frames"
-    pad = den.pad_multiple
-    hp, wp = -(-h // pad) * pad, -(-w // pad) * pad
     expected_lines = []
     for t, frame in enumerate(frames):
         expected = den.process(frame)
         expected_lines += guard_lines(den, t)
-        got = np.fromfile(tmp_path / f"out{t}.f32", np.float32).reshape(3, hp, wp)[:, :h, :w]
+        got = np.fromfile(tmp_path / f"out{t}.f32", np.float32).reshape(3, h, w)
         assert np.isfinite(got).all(), t
         err = float(np.abs(got - expected).max() / max(1.0, float(np.abs(expected).max())))
         assert err <= 1e-5, (t, err)
@@ -149,6 +147,7 @@ def test_c_host_runs_afn_on_the_native_library_like_the_denoiser(tmp_path, pollu
         ("all", "metadata key rtdenoise.contract missing"),
         ("rtdenoise.state", "metadata key rtdenoise.state missing"),
         ("bad-state", 'metadata rtdenoise.state[1] has no key "channels"'),
+        ("bad-margin", 'metadata rtdenoise.edge_margin is "-2", not an integer in 0..256'),
     ],
 )
 def test_c_host_refuses_a_model_without_its_metadata(tmp_path, strip, named):
@@ -165,6 +164,8 @@ def test_c_host_refuses_a_model_without_its_metadata(tmp_path, strip, named):
         state = json.loads(props["rtdenoise.state"])
         del state[1]["channels"]
         props["rtdenoise.state"] = json.dumps(state)
+    elif strip == "bad-margin":
+        props["rtdenoise.edge_margin"] = "-2"
     else:
         del props[strip]
     del model.metadata_props[:]
@@ -177,3 +178,31 @@ def test_c_host_refuses_a_model_without_its_metadata(tmp_path, strip, named):
     last = res.stderr.strip().splitlines()[-1]
     assert last.startswith(f"{path}: {named}"), res.stderr
     assert not list(tmp_path.glob("out*.f32"))
+
+
+def test_c_host_applies_an_edge_margin_like_the_denoiser(tmp_path):
+    """demo:afn given `rtdenoise.edge_margin` = 7 (an optional key): the host repeats 7 edge
+    pixels on every side before padding to the multiple and reads the frame back from (7, 7),
+    as `Denoiser` does, over 5 frames with state; the output differs from the model's without
+    the margin, so a margin ignored or cropped from the wrong corner fails."""
+    onnx = pytest.importorskip("onnx")
+    exe = build_host(tmp_path)
+    model = onnx.load(str(Denoiser("demo:afn").source))
+    model.metadata_props.add(key="rtdenoise.edge_margin", value="7")
+    path = tmp_path / "margin.onnx"
+    onnx.save(model, str(path))
+    den, without = Denoiser(path), Denoiser("demo:afn")
+    assert den.edge_margin == 7 and den.bridge == "native-cpp"
+    frames = [read_frame(p).buffers for p in find_frames(sample_sequences()[0])][:5]
+    frames = [{k: np.array(v[:, :61, :58], np.float32) for k, v in f.items()} for f in frames]
+    for t, frame in enumerate(frames):
+        for b, data in frame.items():
+            data.tofile(tmp_path / f"f{t}.{b}.f32")
+    res = run_host(exe, path, tmp_path, len(frames), 61, 58)
+    assert res.returncode == 0, res.stderr
+    for t, frame in enumerate(frames):
+        expected, plain = den.process(frame), without.process(frame)
+        got = np.fromfile(tmp_path / f"out{t}.f32", np.float32).reshape(3, 61, 58)
+        scale = max(1.0, float(np.abs(expected).max()))
+        assert float(np.abs(got - expected).max()) / scale <= 1e-5, t
+        assert float(np.abs(got - plain).max()) / scale > 1e-4, t

@@ -1,13 +1,16 @@
-"""The `padding` config key of afn, affinity and nbg: how their k x k convs see past the edge."""
+"""The `padding` and `edge_margin` config keys of afn, affinity and nbg: how their k x k convs
+see past the frame's edge, and how far past it the frame is extended first."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from model_inputs import random_buffers
 
 from rtdenoise.export.onnx_export import export_model
 from rtdenoise.export.validate import synthetic_frames, validate
+from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.models.registry import build_model, family_class
 
 CONFIGS = {
@@ -16,6 +19,11 @@ CONFIGS = {
     "nbg": {"hidden": 8, "guide_tonemap": "log1p", "reprojection": "per_tap_hdr"},
 }
 N, H, W = 1, 32, 32
+
+
+def _edge_pad(a: np.ndarray, m: int) -> np.ndarray:
+    """`a` ((C, H, W) or (S, C, H, W)) with m edge pixels repeated on every side."""
+    return np.pad(a, ((0, 0),) * (a.ndim - 2) + ((m, m), (m, m)), mode="edge")
 
 
 def _conv_outputs(model: torch.nn.Module, buffers: dict) -> list[torch.Tensor]:
@@ -60,3 +68,36 @@ def test_replicate_padding_changes_the_edge_and_exports(family: str):
     assert report.passed and report.max_error < 1e-5, report.errors
     with pytest.raises(ValueError, match=f"{family} padding must be one of zeros, replicate"):
         build_model(family, {**config, "padding": "reflect"})
+
+
+@pytest.mark.parametrize("family", sorted(CONFIGS))
+def test_edge_margin_runs_the_model_on_the_edge_padded_frame(family: str):
+    """`edge_margin` = 6: FrameLoop repeats 6 edge pixels on every side (then pads to the pad
+    multiple) and crops the output back, i.e. exactly the margin-0 model with the same weights
+    on np.pad(frame, 6, "edge"), cropped, over 4 moving frames with state at a size that is no
+    multiple (30 x 37); exported, the key `rtdenoise.edge_margin` carries it, ORT (fast and
+    portable) follows PyTorch, and out-of-range margins are refused by name."""
+    m, (h, w) = 6, (30, 37)
+    config = {**CONFIGS[family], "padding": "replicate"}
+    torch.manual_seed(0)
+    plain = build_model(family, config).eval().requires_grad_(False)
+    margin = build_model(family, {**config, "edge_margin": m}).eval().requires_grad_(False)
+    margin.load_state_dict(plain.state_dict())
+    assert margin.edge_margin == m and margin.config()["edge_margin"] == m
+    frames = synthetic_frames(plain.inputs, 4, h, w)
+    padded = [{k: _edge_pad(v, m) for k, v in f.items()} for f in frames]
+    with torch.no_grad():
+        ours = [o[0].numpy() for o in FrameLoop(margin).run(frames)]
+        theirs = [o[0, :, m : m + h, m : m + w].numpy() for o in FrameLoop(plain).run(padded)]
+        unpadded = [o[0].numpy() for o in FrameLoop(plain).run(frames)]
+    for a, b in zip(ours, theirs, strict=True):
+        assert a.shape == (3, h, w)
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+    assert max(float(np.abs(a - c).max()) for a, c in zip(ours, unpadded, strict=True)) > 1e-3
+    proto = export_model(margin)
+    assert {p.key: p.value for p in proto.metadata_props}["rtdenoise.edge_margin"] == str(m)
+    report = validate(margin, proto.SerializeToString(), frames)
+    assert report.passed and report.max_error < 1e-4, report.errors
+    for bad in (-1, 257, 2.5):
+        with pytest.raises(ValueError, match=f"{family} edge_margin must be"):
+            build_model(family, {**config, "edge_margin": bad})

@@ -14,8 +14,8 @@
  * MODEL is an exported model (`denoise-export`), LIBRARY the custom-op library
  * (<site-packages>/rtdenoise/runtime/bridge/librtdenoise_ops.so), FRAMES the number of frames
  * and H W their size. Frame t's buffer <name> is <FOLDER>/f<t>.<name>.f32: the H x W frame,
- * raw float32 C x H x W (C order); the program writes each frame's padded `output`, 1 x C x HP
- * x WP, to <FOLDER>/out<t>.f32.
+ * raw float32 C x H x W (C order); the program writes each frame's `output`, cropped to the
+ * frame (C x H x W), to <FOLDER>/out<t>.f32.
  *
  * It loads the model, registers the custom ops by calling the library's RegisterCustomOps
  * (what ORT's RegisterCustomOpsLibrary does; dlopen + dlsym here), then reads what
@@ -27,6 +27,9 @@
  *     count C is that graph input's shape [1, C, H, W] (static in every exported model);
  *   - rtdenoise.pad_multiple: H and W are padded to HP and WP, its multiples, by repeating the
  *     last row and column;
+ *   - rtdenoise.edge_margin (optional, 0 if absent): M edge rows and columns repeated on every
+ *     side first (HP and WP are then multiples at least H + 2M and W + 2M), and the frame's
+ *     output read back from row M, column M;
  *   - rtdenoise.state [{"name", "channels", "scale" (default 1), "size" (optional)}]: the
  *     inputs state.<name>, [1, channels, HP/scale, WP/scale] or [1, channels, h, w] for a
  *     fixed size [h, w], and the outputs state_next.<name> fed back;
@@ -449,19 +452,26 @@ static const GraphTensor *find_tensor(const GraphTensor *list, int count, const 
     return NULL;
 }
 
-/* The value of custom metadata key `key`, allocated; the model must have it. */
-static char *metadata_value(void *metadata, void *allocator, const char *key) {
+/* The value of custom metadata key `key`, allocated, or NULL if the model has none. */
+static char *optional_metadata_value(void *metadata, void *allocator, const char *key) {
     char *value = NULL;
     check(FN(MODEL_METADATA_LOOKUP_CUSTOM_METADATA_MAP,
              OrtStatus *(*)(const void *, void *, const char *, char **))(metadata, allocator,
                                                                          key, &value),
           "ModelMetadataLookupCustomMetadataMap");
-    if (!value)
-        refuse("metadata key %s missing: not an rtdenoise model (docs/contract.md, \"Metadata\")",
-               key);
+    if (!value) return NULL;
     char *copy = xstrdup(value);
     check(FN(ALLOCATOR_FREE, OrtStatus *(*)(void *, void *))(allocator, value), "AllocatorFree");
     return copy;
+}
+
+/* The value of custom metadata key `key`, allocated; the model must have it. */
+static char *metadata_value(void *metadata, void *allocator, const char *key) {
+    char *value = optional_metadata_value(metadata, allocator, key);
+    if (!value)
+        refuse("metadata key %s missing: not an rtdenoise model (docs/contract.md, \"Metadata\")",
+               key);
+    return value;
 }
 
 typedef struct {
@@ -478,7 +488,7 @@ typedef struct {
     int n_in, n_state, has_reset;
     Tensor in[MAX_TENSORS];        /* the buffers of rtdenoise.inputs, in order */
     Tensor state[MAX_TENSORS];     /* rtdenoise.state, in order */
-    int64_t pad, out_channels;
+    int64_t pad, margin, out_channels;
 } Model;
 
 /* Read rtdenoise.* and the session's inputs and outputs into `m` (shapes without H and W). */
@@ -493,6 +503,7 @@ static void read_model(void *session, Model *m) {
     char *inputs = metadata_value(metadata, allocator, "rtdenoise.inputs");
     char *states = metadata_value(metadata, allocator, "rtdenoise.state");
     char *pad = metadata_value(metadata, allocator, "rtdenoise.pad_multiple");
+    char *margin = optional_metadata_value(metadata, allocator, "rtdenoise.edge_margin");
     FN(RELEASE_MODEL_METADATA, void (*)(void *))(metadata);
 
     /* rtdenoise.contract and rtdenoise.pad_multiple: an integer each, as text */
@@ -505,6 +516,15 @@ static void read_model(void *session, Model *m) {
         refuse("metadata rtdenoise.pad_multiple is \"%s\", not an integer in 1..4096", pad);
     m->pad = v->integer;
     json_free(v);
+    m->margin = 0;
+    if (margin) { /* optional: an integer as text, 0..256 */
+        v = json_parse("rtdenoise.edge_margin", margin);
+        if (v->type != JSON_INTEGER || v->integer < 0 || v->integer > 256)
+            refuse("metadata rtdenoise.edge_margin is \"%s\", not an integer in 0..256", margin);
+        m->margin = v->integer;
+        json_free(v);
+        free(margin);
+    }
 
     GraphTensor graph_in[MAX_TENSORS], graph_out[MAX_TENSORS];
     const int n_graph_in = graph_tensors(session, allocator, 0, graph_in);
@@ -638,14 +658,18 @@ static void allocate(Tensor *t, int64_t h, int64_t w) {
     memset(t->data, 0, t->count * sizeof(float));
 }
 
-/* Repeat the last row and column: C x H x W `src` -> the C x HP x WP tensor `t`. */
-static void pad_edge(const float *src, int64_t h, int64_t w, Tensor *t) {
+static int64_t clamp_index(int64_t i, int64_t n) { return i < 0 ? 0 : i < n ? i : n - 1; }
+
+/* Repeat the edge rows and columns: C x H x W `src` -> the C x HP x WP tensor `t`, the frame
+ * at row and column `margin` (the edge repeated above and left of it, and below and right up
+ * to HP x WP). */
+static void pad_edge(const float *src, int64_t h, int64_t w, int64_t margin, Tensor *t) {
     const int64_t c = t->dims[1], hp = t->dims[2], wp = t->dims[3];
     for (int64_t k = 0; k < c; ++k)
         for (int64_t y = 0; y < hp; ++y)
             for (int64_t x = 0; x < wp; ++x)
                 t->data[(k * hp + y) * wp + x] =
-                    src[(k * h + (y < h ? y : h - 1)) * w + (x < w ? x : w - 1)];
+                    src[(k * h + clamp_index(y - margin, h)) * w + clamp_index(x - margin, w)];
 }
 
 static void read_floats(const char *path, float *data, size_t count) {
@@ -723,8 +747,8 @@ int main(int argc, char **argv) {
     /* everything about the model, from the model */
     static Model m;
     read_model(session, &m);
-    const int64_t hp = (height + m.pad - 1) / m.pad * m.pad;
-    const int64_t wp = (width + m.pad - 1) / m.pad * m.pad;
+    const int64_t hp = (height + 2 * m.margin + m.pad - 1) / m.pad * m.pad;
+    const int64_t wp = (width + 2 * m.margin + m.pad - 1) / m.pad * m.pad;
     size_t stage_count = 0; /* the largest C x H x W buffer, read and guarded before padding */
     for (int i = 0; i < m.n_in; ++i) {
         allocate(&m.in[i], hp, wp);
@@ -737,8 +761,10 @@ int main(int argc, char **argv) {
         else allocate(t, hp / t->scale, wp / t->scale);
     }
     const size_t output_count = (size_t)m.out_channels * (size_t)hp * (size_t)wp;
+    const size_t frame_count = (size_t)m.out_channels * (size_t)height * (size_t)width;
     float reset_value = 1.0f;
     float *stage = xmalloc(stage_count * sizeof(float));
+    float *cropped = xmalloc(frame_count * sizeof(float)); /* the frame's output, C x H x W */
     uint8_t *nonfinite_mask = xmalloc((size_t)height * (size_t)width);
 
     const char *in_names[MAX_TENSORS * 2 + 1], *out_names[MAX_TENSORS + 1];
@@ -765,7 +791,7 @@ int main(int argc, char **argv) {
             if (zero_guide(name, stage, count) == 1) /* a missing render pass */
                 snprintf(unusable + strlen(unusable), sizeof unusable - strlen(unusable), "%s%s",
                          unusable[0] ? "," : "", name);
-            pad_edge(stage, height, width, &m.in[i]);
+            pad_edge(stage, height, width, m.margin, &m.in[i]);
         }
         for (int64_t p = 0; p < height * width; ++p) nonfinite += nonfinite_mask[p];
         const int reset_now = restart || unusable[0];
@@ -813,17 +839,18 @@ int main(int argc, char **argv) {
             check(FN(GET_TENSOR_MUTABLE_DATA, OrtStatus *(*)(void *, void **))(out_values[o],
                                                                             (void **)&data),
                   "GetTensorMutableData");
-            if (o == 0) { /* NaN/Inf in the frame's output: 0, and the next frame restarts */
+            if (o == 0) { /* cropped; NaN/Inf in it: 0, and the next frame restarts */
                 restart = unusable[0] != 0;
+                float *v = cropped;
                 for (int64_t c = 0; c < m.out_channels; ++c)
-                    for (int64_t y = 0; y < height; ++y)
-                        for (int64_t x = 0; x < width; ++x) {
-                            float *v = &data[(c * hp + y) * wp + x];
+                    for (int64_t y = m.margin; y < m.margin + height; ++y)
+                        for (int64_t x = m.margin; x < m.margin + width; ++x, ++v) {
+                            *v = data[(c * hp + y) * wp + x];
                             if (!isfinite(*v)) *v = 0.0f, restart = 1;
                         }
                 snprintf(path, sizeof path, "%s/out%d.f32", folder, t);
                 FILE *f = fopen(path, "wb");
-                if (!f || fwrite(data, sizeof(float), output_count, f) != output_count)
+                if (!f || fwrite(cropped, sizeof(float), frame_count, f) != frame_count)
                     return fprintf(stderr, "%s: cannot write\n", path), EXIT_RUN;
                 fclose(f);
             } else { /* the state the next frame reads */
@@ -837,6 +864,7 @@ int main(int argc, char **argv) {
     for (int s = 0; s < m.n_state; ++s)
         free(m.state[s].name), free(m.state[s].out), free(m.state[s].data);
     free(stage);
+    free(cropped);
     free(nonfinite_mask);
     FN(RELEASE_MEMORY_INFO, void (*)(void *))(memory);
     FN(RELEASE_SESSION, void (*)(void *))(session);

@@ -49,6 +49,10 @@ Choices the paper leaves open (all in `AffinityConfig`, stored in checkpoints):
   the regulariser while training.
 - `padding`: how every 3 x 3 convolution of the U-Net sees past the frame's edge, "zeros"
   (default, as the paper's code) or "replicate" (the edge pixel repeated), as afn's key.
+- `edge_margin` (0): pixels of the frame's edge repeated on every side before the network and
+  cropped from its output (`DenoiserModel.edge_margin`, contract key `rtdenoise.edge_margin`):
+  weights that smear a light at the frame's edge into the first columns keep it in place when
+  the edge lies `edge_margin` pixels inside what they see.
 """
 
 from __future__ import annotations
@@ -105,6 +109,7 @@ class AffinityConfig(FamilyConfig):
     temporal_weight: float = 0.25  # eq. (9), unless training overrides it
     regulariser_weight: float = 1e-5  # eq. (9)
     padding: str = "zeros"  # past the frame's edge: "zeros" or "replicate"
+    edge_margin: int = 0  # edge pixels repeated on every side, then cropped
 
     def validate(self) -> None:
         check_padding(self)
@@ -261,6 +266,7 @@ class Affinity(DenoiserModel):
         super().__init__()
         self.cfg = config = AffinityConfig.of(config)
         self.pad_multiple = 2 ** len(config.encoder)
+        self.edge_margin = config.edge_margin
         self.offsets = feature_offsets(config.sample_features)
         self.embedding = Embedding(
             feature_channels(config.sample_features),

@@ -64,6 +64,10 @@ Choices the paper leaves open (all in `AFNConfig`, stored in checkpoints):
   With zeros a small light at the frame's edge reads as a bright pixel beside a black one, and
   demo:afn smeared the committed emitter strip into the first two columns (7.11 where the
   reference is 0.055; benchmarks/README.md, "afn's frame 7").
+- `edge_margin` (0): pixels of the frame's edge repeated on every side before the network and
+  cropped from its output (`DenoiserModel.edge_margin`, contract key `rtdenoise.edge_margin`):
+  weights that smear a light at the frame's edge into the first columns keep it in place when
+  the edge lies `edge_margin` pixels inside what they see.
 - H and W must be multiples of `pad_multiple` = 2 ** (len(widths) - 1).
 
 Cost (FLOP = 2 x multiply-adds of the Conv layers, `benchmarks/flops.py`): the defaults take
@@ -112,6 +116,7 @@ class AFNConfig(AccumulatingConfig):
     fusion: str = "head"  # where alpha comes from: "head" (predictor) or "network" (Fig. 2c)
     fusion_width: int = 8  # FusionNet's hidden channels
     padding: str = "zeros"  # past the frame's edge: "zeros" or "replicate" (every k x k conv)
+    edge_margin: int = 0  # edge pixels repeated on every side, then cropped
 
     @classmethod
     def from_dict(cls, data: dict | None) -> AFNConfig:
@@ -291,6 +296,7 @@ class AFN(DenoiserModel):
         super().__init__()
         self.cfg = config = AFNConfig.of(config)
         self.pad_multiple = 2 ** (len(config.widths) - 1)
+        self.edge_margin = config.edge_margin
         # r_1spp (3) + r_TA (3) + albedo (3) + normal (3) + depth (1) [+ TA weight (1)]
         in_channels = 13 + int(config.history_input)
         self.predictor = KernelPredictor(

@@ -31,6 +31,10 @@ Choices the paper leaves open (all in `NBGConfig`, stored in checkpoints):
 - GuideNet activation: leaky ReLU with slope `negative_slope` = 0.2 (the official code's lrelu;
   the paper's text says ReLU: slope 0). Zero ("SAME") padding as the official conv layers
   (`padding` "zeros"), or "replicate": the edge pixel repeated, as afn's and affinity's key.
+- `edge_margin` (0): pixels of the frame's edge repeated on every side before the network and
+  cropped from its output (`DenoiserModel.edge_margin`, contract key `rtdenoise.edge_margin`):
+  weights that smear a light at the frame's edge into the first columns keep it in place when
+  the edge lies `edge_margin` pixels inside what they see.
 - `pointwise_guide` (off in Meng20): a 1 x 1 conv from GuideNet's input added to its last
   conv's output before the sigmoid, the pointwise guidance map of HDRNet (Gharbi17): GuideNet's
   k x k convs give a dark pixel beside a light nearly the light's guide, so the light's grid cell
@@ -133,6 +137,7 @@ class NBGConfig(AccumulatingConfig):
     outlier_normal: float = 0.1
     guide_tonemap: str = "gamma"  # GuideNet's radiance input: "gamma" (Meng20, clipped) or "log1p"
     padding: str = "zeros"  # GuideNet's convs past the frame's edge: "zeros" or "replicate"
+    edge_margin: int = 0  # edge pixels repeated on every side, then cropped
 
     def validate(self) -> None:
         super().validate()  # AccumulatingConfig: the reprojection
@@ -282,6 +287,7 @@ class NBG(DenoiserModel):
     def __init__(self, config: NBGConfig | dict | None = None) -> None:
         super().__init__()
         self.cfg = config = NBGConfig.of(config)
+        self.edge_margin = config.edge_margin
         # G guides and G - 1 composition weights (Meng20 Fig. 2: 3 + 2 = 5), and the gate
         gate = 1 if config.history_gate else 0
         in_channels = INPUT_CHANNELS + GATE_CHANNELS * gate + int(config.history_input)
