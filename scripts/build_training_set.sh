@@ -11,7 +11,9 @@
 # Settings (environment): DATA (/work/data), PYTHON (python), VARIANT (llvm_ad_rgb; falls back
 # to scalar_rgb without LLVM 19), THREADS (1), TRAIN_N (1000 clips; raise it to grow the set:
 # the first TRAIN_N clips stay the same), SHARD (e.g. 0/2 to run one of two processes at
-# once on the training phase; empty: all); for a quick trial SIZE (128x128), TRAIN_SPP (256),
+# once on the training phase; empty: all), VALIDATION (1; 0 leaves out the validation phase:
+# the set is committed as validation/, so a machine that lost /work/data needs only the
+# training clips); for a quick trial SIZE (128x128), TRAIN_SPP (256),
 # VAL_SPP (4096), VAL_HALF (4), FIRST_N (64).
 #
 # Training: 128x128, 8 frames, 1 spp input (+ an independent 1-spp colorB), 256-spp
@@ -30,13 +32,14 @@ SIZE=${SIZE:-128x128}
 TRAIN_SPP=${TRAIN_SPP:-256}
 VAL_SPP=${VAL_SPP:-4096}
 VAL_HALF=${VAL_HALF:-4}  # validation sequences of the held-out kinds, and as many of the others
+VALIDATION=${VALIDATION:-1}
 HELD_OUT=corridor,water
 TRAIN_SEED=10000
 VAL_SEED=20000
 TRAIN=(--seed "$TRAIN_SEED" --frames 8 --size "$SIZE" --spp-ref "$TRAIN_SPP"
     --exclude-kinds "$HELD_OUT")
 VAL=(--seed "$VAL_SEED" --frames 12 --size "$SIZE" --spp-ref "$VAL_SPP")
-mkdir -p "$DATA/train_v2" "$DATA/val_v2"
+mkdir -p "$DATA/train_v2"
 # `nice` alone does not yield under `setsid`: with the kernel's autogroup scheduling (on by
 # default) a new session is a group of its own with a fair share against the shell's, so two
 # niced renders took two thirds of the 2 cores from a benchmark. Lower the group's weight too.
@@ -67,7 +70,8 @@ if [ -n "$SHARD" ]; then shard=(--shard "$SHARD"); fi
 # 1. a first slice of the training set, so that training can start
 render "$DATA/train_v2" "${TRAIN[@]}" -n "$FIRST_N" "${shard[@]}"
 # 2. the validation set (small: 10-30 minutes a sequence on one core)
-if [ -z "$SHARD" ] || [ "${SHARD%%/*}" = 0 ]; then
+if [ "$VALIDATION" != 0 ] && { [ -z "$SHARD" ] || [ "${SHARD%%/*}" = 0 ]; }; then
+    mkdir -p "$DATA/val_v2"
     render "$DATA/val_v2" "${VAL[@]}" -n "$VAL_HALF" --start-index 0 --kinds "$HELD_OUT"
     render "$DATA/val_v2" "${VAL[@]}" -n "$VAL_HALF" --start-index "$VAL_HALF" \
         --exclude-kinds "$HELD_OUT"
