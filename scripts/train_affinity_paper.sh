@@ -3,7 +3,8 @@
 # the v2 training set (docs/data.md), in two stages (benchmarks/README.md, "Isik21 at the
 # paper's size on per-sample clips"):
 #
-#   1. the pixel-mean clips of $DATA/train_v2 (S = 1), STEPS1 steps, in pieces of PIECE steps:
+#   1. the pixel-mean clips of $DATA/train_v2 (S = 1), a schedule of STEPS1 steps run up to
+#      STOP1 (default: all of it; fewer leave the rate higher for stage 2), in pieces of PIECE steps:
 #      each piece resumes the last (--resume) and reads the set again, so that clips a render
 #      finished meanwhile join the run;
 #   2. the same clips rendered again with two per-sample layers ($DATA/train_v2_s2, made here
@@ -15,13 +16,14 @@
 #
 #   OUT=/work/exp/aff DATA=/work/data scripts/train_affinity_paper.sh
 #
-# Settings (environment): DATA (/work/data), OUT (./affinity_paper), STEPS1 (3000), PIECE
-# (1000), STEPS2 (1000), MARGIN (8), THREADS (1), RENDER (denoise-render: the S = 2 render;
+# Settings (environment): DATA (/work/data), OUT (./affinity_paper), STEPS1 (3000), STOP1
+# (STEPS1), PIECE (1000), STEPS2 (1000), MARGIN (8), THREADS (1), RENDER (denoise-render: the S = 2 render;
 # the references' variant, llvm_ad_rgb, needs libLLVM 19, docs/data.md "Variants").
 set -euo pipefail
 DATA=${DATA:-/work/data}
 OUT=${OUT:-./affinity_paper}
 STEPS1=${STEPS1:-3000}
+STOP1=${STOP1:-$STEPS1}
 PIECE=${PIECE:-1000}
 STEPS2=${STEPS2:-1000}
 MARGIN=${MARGIN:-8}
@@ -42,9 +44,9 @@ EOF
 
 # 1. pixel-mean clips, in pieces
 S1="$OUT/stage1.pt"
-while [ "$(step_of "$S1")" -lt "$STEPS1" ]; do
+while [ "$(step_of "$S1")" -lt "$STOP1" ]; do
     done_steps=$(step_of "$S1")
-    stop=$(( done_steps + PIECE < STEPS1 ? done_steps + PIECE : STEPS1 ))
+    stop=$(( done_steps + PIECE < STOP1 ? done_steps + PIECE : STOP1 ))
     resume=()
     if [ -f "$S1" ]; then resume=(--resume "$S1"); fi
     denoise-train "$DATA/train_v2" "${COMMON[@]}" --config '{"padding": "replicate"}' \
