@@ -123,8 +123,7 @@ class DenoiserModel(nn.Module):
     """Base class of the denoiser families.
 
     Subclasses set `family`, `config_class`, `example_config`, `inputs` (canonical buffer
-    names they read), `state_specs`, `pad_multiple` and `input_note` (and `edge_margin` where
-    it is not 0), keep their config in
+    names they read), `state_specs`, `pad_multiple` and `input_note`, keep their config in
     `self.cfg`, and implement `forward` (and `loss` when the paper trains with another loss).
     """
 
@@ -136,11 +135,6 @@ class DenoiserModel(nn.Module):
     inputs: tuple[str, ...] = ()
     state_specs: tuple[StateSpec, ...] = ()
     pad_multiple: int = 1
-    # Pixels of the frame's edge repeated on every side before `forward` and cropped from its
-    # output (FrameLoop, the runtime; contract key `rtdenoise.edge_margin`): for weights that
-    # smear what lies at the frame's edge. The families with a `padding` key read their
-    # config's `edge_margin`.
-    edge_margin: int = 0
     input_note: str = ""
     # Scalars a runtime may change per session (e.g. a kernel size), each declared once with
     # `add_runtime_option`: the float32 buffer `option_<name>` of the model, exported as the
@@ -155,6 +149,14 @@ class DenoiserModel(nn.Module):
         name = option_buffer(option.name)
         self.register_buffer(name, torch.tensor(float(option.default)), persistent=False)
         return getattr(self, name)
+
+    @property
+    def edge_margin(self) -> int:
+        """Pixels of the frame's edge repeated on every side before `forward` and cropped from
+        its output (FrameLoop, the runtime; contract key `rtdenoise.edge_margin`), for weights
+        that smear what lies at the frame's edge: the config's `edge_margin` (afn, affinity and
+        nbg have the key, beside `padding`), 0 for a config without it."""
+        return int(getattr(getattr(self, "cfg", None), "edge_margin", 0))
 
     def forward(
         self,

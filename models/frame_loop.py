@@ -16,6 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from rtdenoise.runtime.arrays import padded_size
 from rtdenoise.runtime.contract import BUFFER_RANK
 
 from .base import DenoiserModel
@@ -28,13 +29,12 @@ def pad_to_multiple(x: torch.Tensor, multiple: int, margin: int = 0) -> torch.Te
     """Replicate-pad the last two axes of (N, C, H, W) `x` (or (N, S, C, H, W)): `margin`
     pixels on every side, then up to multiples of `multiple` (bottom, right)."""
     h, w = x.shape[-2:]
-    ph, pw = (-(h + 2 * margin)) % multiple, (-(w + 2 * margin)) % multiple
-    if not (ph or pw or margin):
+    hp, wp = padded_size((h, w), multiple, margin)
+    if (hp, wp) == (h, w):
         return x
     flat = x.reshape(-1, *x.shape[-3:])  # replicate padding takes 4-D tensors
-    pads = (margin, margin + pw, margin, margin + ph)
-    padded = F.pad(flat, pads, mode="replicate")
-    return padded.reshape(*x.shape[:-2], *padded.shape[-2:])
+    pads = (margin, wp - w - margin, margin, hp - h - margin)
+    return F.pad(flat, pads, mode="replicate").reshape(*x.shape[:-2], hp, wp)
 
 
 class FrameLoop:
@@ -73,7 +73,7 @@ class FrameLoop:
         m, margin = self.model.pad_multiple, self.model.edge_margin
         key = (n, h, w, device)
         if reset or self.state is None or key != self._key:
-            hp, wp = -(-(h + 2 * margin) // m) * m, -(-(w + 2 * margin) // m) * m
+            hp, wp = padded_size((h, w), m, margin)
             self.state = self.model.initial_state(n, hp, wp, device=device)
             if self.outer:
                 self.state = self.model.training_state(self.state)

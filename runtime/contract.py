@@ -12,7 +12,7 @@ outputs `output` ([1, 3, H, W]) plus `state_next.<name>` for every state input. 
   the overridable initializer `option.<name>`), e.g. a kernel size;
 - edge margin (optional key `rtdenoise.edge_margin`): pixels of the frame's edge repeated on
   every side before the graph and cropped from its output, for a model whose convolutions
-  smear what lies at the frame's edge (docs/contract.md, "Padding");
+  smear what lies at the frame's edge (docs/contract.md, "Metadata", "Driving a model");
 - `Declaration`: what a model declares (family, config, buffers, state, pad multiple, note):
   its `metadata()` is what the exporter writes, its graph input/output names the wrapper's;
 - `parse_contract` / `contract_from_session`: check metadata + graph I/O, give a `Contract`

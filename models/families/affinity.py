@@ -266,7 +266,6 @@ class Affinity(DenoiserModel):
         super().__init__()
         self.cfg = config = AffinityConfig.of(config)
         self.pad_multiple = 2 ** len(config.encoder)
-        self.edge_margin = config.edge_margin
         self.offsets = feature_offsets(config.sample_features)
         self.embedding = Embedding(
             feature_channels(config.sample_features),

@@ -296,7 +296,6 @@ class AFN(DenoiserModel):
         super().__init__()
         self.cfg = config = AFNConfig.of(config)
         self.pad_multiple = 2 ** (len(config.widths) - 1)
-        self.edge_margin = config.edge_margin
         # r_1spp (3) + r_TA (3) + albedo (3) + normal (3) + depth (1) [+ TA weight (1)]
         in_channels = 13 + int(config.history_input)
         self.predictor = KernelPredictor(

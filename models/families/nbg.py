@@ -287,7 +287,6 @@ class NBG(DenoiserModel):
     def __init__(self, config: NBGConfig | dict | None = None) -> None:
         super().__init__()
         self.cfg = config = NBGConfig.of(config)
-        self.edge_margin = config.edge_margin
         # G guides and G - 1 composition weights (Meng20 Fig. 2: 3 + 2 = 5), and the gate
         gate = 1 if config.history_gate else 0
         in_channels = INPUT_CHANNELS + GATE_CHANNELS * gate + int(config.history_input)
