@@ -15,6 +15,10 @@ and the learning curve in blocks of --block frames:
 previous pilots) are replaced by the reference itself, log1p(ref), in eq. (12)'s relative form.
 What learning gains then is what any self-supervised label could buy at most with this
 optimiser (one Adam step per frame at the config's lr) on these frames.
+
+`--steps-per-frame K` takes K Adam steps on each frame's loss instead of one (the frame is shown
+from the first, as shipped; the K - 1 more re-run it from the same history and keep only theta
+and Adam's moments): what more update per frame buys, with either label.
 """
 
 from __future__ import annotations
@@ -54,10 +58,16 @@ def oracle_loss(self, hat_a, hat_b, pilot_a, pilot_b, prev_a, prev_b, has_histor
     return (0.5 * ((hat_a - label) ** 2 + (hat_b - label) ** 2) / (label * label + eps)).mean()
 
 
-def outputs(model, seq, learn: bool = True, oracle: bool = False) -> Iterator[np.ndarray]:
+LEARNED_STATE = ("theta", "adam_m", "adam_v", "adam_t")
+
+
+def outputs(
+    model, seq, learn: bool = True, oracle: bool = False, steps_per_frame: int = 1
+) -> Iterator[np.ndarray]:
     """`model`'s output (C, H, W) on each frame of `seq`, learning or frozen, its state carried
     and a cut restarting the history, not the learning; with `oracle`, the online update learns
-    from each frame's reference (`oracle_loss`)."""
+    from each frame's reference (`oracle_loss`); learning takes `steps_per_frame` Adam steps on
+    each frame."""
     if oracle:
         model.online_loss = types.MethodType(oracle_loss, model)
     n_frames = seq.reference.shape[0]
@@ -73,16 +83,21 @@ def outputs(model, seq, learn: bool = True, oracle: bool = False) -> Iterator[np
                 model.oracle_label = torch.log1p(torch.clamp(ref, min=0.0))
             state["freeze"] = torch.full_like(state["freeze"], 0.0 if learn else 1.0)
             state["keep"] = torch.full_like(state["keep"], 0.0 if t == 0 else 1.0)
-            out, state = model(buffers, state, torch.tensor(1.0 if first else 0.0))
+            reset = torch.tensor(1.0 if first else 0.0)
+            out, new_state = model(buffers, state, reset)
+            for _ in range(steps_per_frame - 1 if learn else 0):
+                _, again = model(
+                    buffers, {**state, **{k: new_state[k] for k in LEARNED_STATE}}, reset
+                )
+                new_state = {**new_state, **{k: again[k] for k in LEARNED_STATE}}
+            state = new_state
             yield out[0].numpy()
 
 
-def run(model, seq, learn: bool, oracle: bool = False) -> list[float]:
+def run(model, seq, learn: bool, oracle: bool = False, steps_per_frame: int = 1) -> list[float]:
     """Per-frame tonemapped MSE of `model` over `seq` (`outputs`)."""
-    return [
-        mse_tonemapped(out, ref)
-        for out, ref in zip(outputs(model, seq, learn, oracle), seq.reference, strict=True)
-    ]
+    frames = outputs(model, seq, learn, oracle, steps_per_frame)
+    return [mse_tonemapped(out, ref) for out, ref in zip(frames, seq.reference, strict=True)]
 
 
 def pooled(mses: list[float], skip: int) -> float:
@@ -99,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument(
         "--oracle", action="store_true", help="learn from the reference (a diagnostic bound)"
+    )
+    ap.add_argument(
+        "--steps-per-frame", type=int, default=1, help="Adam steps on each frame's loss"
     )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -121,7 +139,7 @@ def main(argv: list[str] | None = None) -> int:
         results[name] = {}
         for index, seq in enumerate(seqs):
             t0 = time.perf_counter()
-            learn = run(model, seq, True, args.oracle)
+            learn = run(model, seq, True, args.oracle, args.steps_per_frame)
             key = (frozen_key, index)
             if key not in frozen_runs:
                 frozen_runs[key] = run(model, seq, False)

@@ -362,6 +362,69 @@ def test_history_clamp_keeps_a_wrong_history_near_this_frames_pilots():
         build_model("crossreg", {**SMALL, "history_clamp": -1.0})
 
 
+def test_log_scale_undoes_the_log_domains_darkening():
+    """log_scale k (y = k log1p(x / k)): on a flat dim wall at 1 spp (a sample lit one time in
+    ten, mean 0.25, both buffers independent) Choi24's k = 1 outputs half the true mean (the
+    mean of log values is below the log of the mean: Jensen), k = 64 (nearly linear below 64)
+    the true mean; k = 1 is the default and k <= 0 is refused."""
+    rng = np.random.default_rng(0)
+    h = w = 32
+
+    def one_spp() -> torch.Tensor:
+        lit = rng.random((1, 3, h, w)) < 0.1
+        return torch.tensor(lit * rng.exponential(2.5, (1, 3, h, w)), dtype=torch.float32)
+
+    normal = torch.zeros(1, 3, h, w)
+    normal[:, 2] = 1.0
+    frame = {
+        "color": one_spp(),
+        "color_b": one_spp(),
+        "albedo": torch.full((1, 3, h, w), 0.5),
+        "normal": normal,
+        "depth": torch.ones(1, 1, h, w),
+        "motion": torch.zeros(1, 2, h, w),
+    }
+
+    def mean_output(config: dict) -> float:
+        model = build_model("crossreg", {**SMALL, "lr": 1e-12, **config})
+        with torch.no_grad():
+            out, _ = model(frame, model.initial_state(1, h, w), torch.tensor(1.0))
+        return float(out.mean())
+
+    assert mean_output({}) == mean_output({"log_scale": 1.0}) < 0.6 * 0.25
+    assert abs(mean_output({"log_scale": 64.0}) - 0.25) < 0.1 * 0.25
+    with pytest.raises(ValueError, match="log_scale"):
+        build_model("crossreg", {**SMALL, "log_scale": 0.0})
+
+
+def test_a_log_scale_exports_and_ort_tracks_the_pytorch_loop(tmp_path):
+    """log_scale 4 exported (its transforms in the online graph, forward and backward): ONNX
+    Runtime's fast kernels and the PyTorch model over 8 frames with their own states fed back
+    give the same outputs, losses and weights, and not those of k = 1."""
+    from rtdenoise.export.onnx_export import export_model
+    from rtdenoise.runtime.denoiser import Denoiser
+
+    model = build_model("crossreg", {**SMALL, "log_scale": 4.0})
+    path = tmp_path / "crossreg_k4.onnx"
+    path.write_bytes(export_model(model).SerializeToString())
+    frames = _frames(8, size=32, seq=2)
+    loop, plain = FrameLoop(model), FrameLoop(build_model("crossreg", SMALL))
+    denoiser = Denoiser(path)
+    with torch.no_grad():
+        for i, frame in enumerate(frames):
+            ref = loop(frame)[0].numpy()
+            out = denoiser.process(frame)
+            np.testing.assert_allclose(out, ref, atol=1e-4, rtol=1e-4, err_msg=str(i))
+            loss, ref_loss = (
+                float(denoiser.state_value("loss").ravel()[0]),
+                float(loop.state["loss"]),
+            )
+            assert abs(loss - ref_loss) <= 1e-3 * abs(ref_loss), (i, loss, ref_loss)
+            theta = denoiser.state_value("theta").ravel()
+            assert np.abs(theta - loop.state["theta"].reshape(-1).numpy()).max() < 1e-4, i
+            assert float(np.abs(out - plain(frame)[0].numpy()).max()) > 1e-3, i  # k matters
+
+
 def test_the_online_step_traces_for_export():
     """The export's symbolic trace of one frame (make_fx, models/online.py traced_step) goes
     through: the offline-pretraining test on `freeze` (a graph input there) is not taken while

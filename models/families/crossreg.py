@@ -130,6 +130,14 @@ class CrossRegConfig(FamilyConfig):
     # pixel whose depth sample missed a light its colour partly holds, and its history then
     # lights the dark pixel it lands on
     history_clamp: float = 0.0
+    # the scale k of the log transform y = k log1p(x / k) the regression and the filter run on
+    # (Choi24 s.4.4: k = 1). The mean of log values lies below the log of the mean where a pixel
+    # is noisy (Jensen), so the output is darker than the reference, most in dim noisy scenes (a
+    # third darker on validation/long_000 at k = 1), and no theta can undo it; a larger k keeps
+    # radiance below k nearly linear (unbiased: the pilots regress the other buffer's samples,
+    # the idea of cross-regression) and still compresses lights far above it. The U-Net sees
+    # log1p of the radiance whatever k, and history_clamp stays in those log units
+    log_scale: float = 1.0
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -147,6 +155,8 @@ class CrossRegConfig(FamilyConfig):
             raise self.fail(f"temporal_screening must be 0 or odd >= 3, got {k}")
         if not 0.0 <= self.alpha_min < 1.0:
             raise self.fail(f"alpha_min must be in [0, 1), got {self.alpha_min}")
+        if not 0.0 < self.log_scale <= 1e6:
+            raise self.fail(f"log_scale must be in (0, 1e6], got {self.log_scale}")
         if self.history_clamp < 0.0:
             raise self.fail(f"history_clamp must be >= 0 (0 = off), got {self.history_clamp}")
         if not 0.0 <= self.temporal_loss_weight <= 1.0:
@@ -342,9 +352,22 @@ class CrossReg(DenoiserModel):
         normal, motion = buffers["normal"], buffers["motion"]
         depth = torch.clamp(buffers["depth"], min=0.0)
 
-        # 1-2. Log transform and cross-regression pilots (Choi24 s.4.4, s.4.1).
+        # 1-2. Log transform (Choi24 s.4.4, scale k = `log_scale`) and cross-regression pilots
+        # (s.4.1).
+        k = cfg.log_scale
+        scaled = k != 1.0
+
+        def from_linear(x: torch.Tensor) -> torch.Tensor:  # x -> y = k log1p(x / k)
+            return k * torch.log1p(x / k) if scaled else torch.log1p(x)
+
+        def to_linear(y: torch.Tensor) -> torch.Tensor:
+            return k * torch.expm1(y / k) if scaled else torch.expm1(y)
+
+        def to_log(y: torch.Tensor) -> torch.Tensor:  # y as log1p(x), the U-Net's units
+            return torch.log1p(to_linear(y)) if scaled else y
+
         with stage("regression"):
-            y_a, y_b = torch.log1p(color), torch.log1p(color_b)
+            y_a, y_b = from_linear(color), from_linear(color_b)
             pilot_a, pilot_b = cross_regression(
                 y_a, y_b, albedo, normal, cfg.regression_window, cfg.regression_stride
             )
@@ -365,8 +388,10 @@ class CrossReg(DenoiserModel):
         prev_out = torch.where(has_history, warped[:, :3], 0.5 * (pilot_a + pilot_b))
         if cfg.history_clamp:  # the history no farther than d (log units) from the pilots
             d = cfg.history_clamp
-            lo, hi = torch.minimum(pilot_a, pilot_b) - d, torch.maximum(pilot_a, pilot_b) + d
-            prev_out = torch.minimum(torch.maximum(prev_out, lo), hi)
+            log_a, log_b = to_log(pilot_a), to_log(pilot_b)
+            lo, hi = torch.minimum(log_a, log_b) - d, torch.maximum(log_a, log_b) + d
+            clamped = torch.minimum(torch.maximum(to_log(prev_out), lo), hi)
+            prev_out = from_linear(torch.expm1(clamped)) if scaled else clamped
         prev_a, prev_b = warped[:, 3:6], warped[:, 6:9]
         labelled = has_history  # where the warped previous pilots are the temporal labels
         if cfg.temporal_screening:
@@ -391,7 +416,8 @@ class CrossReg(DenoiserModel):
 
             # 4. U-Net: bandwidths and temporal weight (s.4.2, s.4.4).
             with stage("unet"):
-                net_in = torch.cat((pilot_a, pilot_b, prev_out, albedo, normal), dim=1)
+                pilots_in = (to_log(pilot_a), to_log(pilot_b), to_log(prev_out))
+                net_in = torch.cat((*pilots_in, albedo, normal), dim=1)
                 params = self.layout.unflatten(theta)
                 raw = torch.func.functional_call(self.unet, params, (net_in,))
                 band = 1.0 / (raw[:, :5] ** 2 + BAND_EPS)
@@ -431,7 +457,7 @@ class CrossReg(DenoiserModel):
             )
 
         # 7. Back to linear radiance.
-        output = torch.clamp(torch.expm1(hat), min=0.0)
+        output = torch.clamp(to_linear(hat), min=0.0)
         if not attached:
             output = output.detach()
         as_state = {"theta": theta_next, "adam_m": m, "adam_v": v, "adam_t": t}
