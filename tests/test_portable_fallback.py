@@ -26,7 +26,7 @@ from rtdenoise.cli.run import main
 sys.argv[1:] = sys.argv[2:]
 main()
 """
-DEMOS = ("afn", "wskp", "wskp-small", "nbg", "affinity", "crossreg")
+DEMOS = ("afn", "wskp", "wskp-small", "nbg", "affinity", "affinity-small", "crossreg")
 FRAMES = 4  # of the committed sequence seq_000 (64x64), state carried from frame to frame
 
 
