@@ -2,7 +2,8 @@
 
 `CrossReg.forward` is one frame of Choi24 Fig. 3, learning included:
 
-1. log transform (s.4.4): y^A = log1p(color), y^B = log1p(color_b), two independent estimates;
+1. log transform (s.4.4): y^A = log1p(color), y^B = log1p(color_b), two independent estimates
+   (`log_scale` k: k log1p(x / k), an option; 1 = the paper);
 2. cross-regression (s.4.1, eqs. (4)-(7); op `CrossRegression`): pilots f~^A (y^B fitted on
    A's variables) and f~^B, kept within the window's observed range;
 3. reprojection (SVGF taps, `models.reprojection`) of the previous log output and pilots;
