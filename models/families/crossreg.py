@@ -387,12 +387,13 @@ class CrossReg(DenoiserModel):
         valid = valid * (1.0 - reset)
         has_history = valid > 0.5
         prev_out = torch.where(has_history, warped[:, :3], 0.5 * (pilot_a + pilot_b))
+        # the U-Net's units, log1p of the radiance (the same tensors when log_scale is 1)
+        log_a, log_b, log_prev = to_log(pilot_a), to_log(pilot_b), to_log(prev_out)
         if cfg.history_clamp:  # the history no farther than d (log units) from the pilots
             d = cfg.history_clamp
-            log_a, log_b = to_log(pilot_a), to_log(pilot_b)
             lo, hi = torch.minimum(log_a, log_b) - d, torch.maximum(log_a, log_b) + d
-            clamped = torch.minimum(torch.maximum(to_log(prev_out), lo), hi)
-            prev_out = from_linear(torch.expm1(clamped)) if scaled else clamped
+            log_prev = torch.minimum(torch.maximum(log_prev, lo), hi)
+            prev_out = from_linear(torch.expm1(log_prev)) if scaled else log_prev
         prev_a, prev_b = warped[:, 3:6], warped[:, 6:9]
         labelled = has_history  # where the warped previous pilots are the temporal labels
         if cfg.temporal_screening:
@@ -417,8 +418,7 @@ class CrossReg(DenoiserModel):
 
             # 4. U-Net: bandwidths and temporal weight (s.4.2, s.4.4).
             with stage("unet"):
-                pilots_in = (to_log(pilot_a), to_log(pilot_b), to_log(prev_out))
-                net_in = torch.cat((*pilots_in, albedo, normal), dim=1)
+                net_in = torch.cat((log_a, log_b, log_prev, albedo, normal), dim=1)
                 params = self.layout.unflatten(theta)
                 raw = torch.func.functional_call(self.unet, params, (net_in,))
                 band = 1.0 / (raw[:, :5] ** 2 + BAND_EPS)
