@@ -9,6 +9,7 @@ import numpy as np
 import OpenEXR
 import pytest
 from progress_lines import other_lines
+from shipped_demos import SHIPPED_DEMOS
 from typer.testing import CliRunner
 
 import rtdenoise.runtime.sequences.frames as sequence
@@ -63,15 +64,8 @@ def test_default_model_is_the_shipped_demo_and_help():
     res = CliRunner().invoke(app, ["--help"], env={"COLUMNS": "200"})
     assert res.exit_code == 0 and "blender" in res.stdout and "canonical" in res.stdout
     help_text = " ".join(res.stdout.replace("│", " ").split())
-    for demo in (
-        "demo:wskp",
-        "demo:wskp-small",
-        "demo:nbg",
-        "demo:afn",
-        "demo:affinity",
-        "demo:affinity-small",
-    ):
-        assert demo in help_text, demo  # --model names every shipped demo
+    for demo in SHIPPED_DEMOS:
+        assert f"demo:{demo}" in help_text, demo  # --model names every shipped demo
 
 
 def test_passthrough_outputs_json_and_previews(tmp_path):

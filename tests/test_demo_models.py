@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from shipped_demos import SHIPPED_DEMOS
 
 from rtdenoise.runtime.denoiser import Denoiser
 from rtdenoise.runtime.sequences.frames import (
@@ -23,9 +24,7 @@ from rtdenoise.shipped import MODELS_DIR, demo_names, sample_sequences
 
 # demo (the file's stem: a family, or `<family>-small` for a family's faster second model) ->
 # minimum PSNR gain over the noisy input, dB
-MIN_GAIN_DB = dict.fromkeys(
-    ("afn", "wskp", "wskp-small", "nbg", "crossreg", "affinity", "affinity-small"), 6.0
-)
+MIN_GAIN_DB = dict.fromkeys(SHIPPED_DEMOS, 6.0)
 FAMILIES = [spec.removeprefix("demo:") for spec in demo_names()]  # the files' stems
 
 

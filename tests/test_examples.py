@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from shipped_demos import SHIPPED_DEMOS
 
 from rtdenoise.runtime import Denoiser, iter_sequence, read_exr
 from rtdenoise.shipped import MODELS_DIR, sample_sequences
@@ -51,18 +52,10 @@ def test_readme_embed_snippet_is_the_example(tmp_path):
         np.testing.assert_array_equal(np.stack([got[c] for c in "RGB"]), expected)
 
 
-DEMOS = (
-    "afn",
-    "wskp",
-    "wskp-small",
-    "nbg",
-    "affinity",
-    "affinity-small",
-    "crossreg",
-)  # every shipped demo
+DEMOS = SHIPPED_DEMOS  # every shipped demo
 
 
-def test_the_demos_are_these_six():
+def test_the_demos_are_the_shipped_files():
     assert sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) == sorted(DEMOS)
 
 

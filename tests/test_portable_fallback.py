@@ -13,6 +13,7 @@ import sys
 import numpy as np
 import pytest
 from progress_lines import other_lines
+from shipped_demos import SHIPPED_DEMOS
 from without_modules import without
 
 from rtdenoise.runtime import Denoiser
@@ -26,7 +27,7 @@ from rtdenoise.cli.run import main
 sys.argv[1:] = sys.argv[2:]
 main()
 """
-DEMOS = ("afn", "wskp", "wskp-small", "nbg", "affinity", "affinity-small", "crossreg")
+DEMOS = SHIPPED_DEMOS
 FRAMES = 4  # of the committed sequence seq_000 (64x64), state carried from frame to frame
 
 
