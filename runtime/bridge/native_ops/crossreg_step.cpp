@@ -212,7 +212,7 @@ void svgf_reproject_run(const Tensor *in, Tensor *out, const int64_t *attrs, int
 namespace {
 const OpDef OPS[] = {
     {"SvgfReproject", 7, 2, SR_RANKS, SR_IN, SR_ATTRS, 2, svgf_reproject_shapes,
-     svgf_reproject_run},
+     svgf_reproject_run, 0, nullptr, true},
 };
 }  // namespace
 

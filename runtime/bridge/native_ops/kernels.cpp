@@ -16,6 +16,11 @@
 #include <mutex>
 #include <thread>
 
+#if defined(__x86_64__) || defined(_M_X64) || defined(__i386__) || defined(_M_IX86)
+#include <xmmintrin.h>
+#define RTD_HAS_MXCSR 1
+#endif
+
 #include "kernels_common.h"
 
 namespace rtd {
@@ -34,6 +39,28 @@ void weight_sharing_filter_run(const Tensor *in, Tensor *out, const int64_t *att
 std::string bilateral_grid_shapes(const Tensor *in, const int64_t *attrs, Shape *out);
 void bilateral_grid_run(const Tensor *in, Tensor *out, const int64_t *attrs, int threads);
 }  // namespace filters
+
+/* ------------------------------------------------------------------ floating-point mode */
+
+#ifdef RTD_HAS_MXCSR
+constexpr unsigned FTZ_DAZ = 0x8040;  // MXCSR flush-to-zero (bit 15), denormals-are-zero (6)
+unsigned FlushDenormals::current() { return _mm_getcsr(); }
+FlushDenormals::FlushDenormals(bool on) : saved_(_mm_getcsr()), set_(on) {
+    if (set_) _mm_setcsr(saved_ | FTZ_DAZ);
+}
+FlushDenormals::FlushDenormals(unsigned mode, int) : saved_(_mm_getcsr()), set_(true) {
+    _mm_setcsr(mode);
+}
+FlushDenormals::~FlushDenormals() {
+    if (set_) _mm_setcsr(saved_);
+}
+#else
+unsigned FlushDenormals::current() { return 0; }
+FlushDenormals::FlushDenormals(bool) {}
+FlushDenormals::FlushDenormals(unsigned, int) {}
+FlushDenormals::~FlushDenormals() {}
+#endif
+FlushDenormals FlushDenormals::with(unsigned mode) { return FlushDenormals(mode, 0); }
 
 /* ------------------------------------------------------------------ threads */
 
@@ -130,8 +157,10 @@ void parallel_rows(int64_t rows, int threads, int64_t work, void (*fn)(void *, i
     auto bounds = [&](int64_t c) { return rows * c / chunks; };
     std::atomic<int64_t> next{0};
     std::vector<std::exception_ptr> errors(static_cast<size_t>(team));
+    const unsigned mode = FlushDenormals::current();  // the workers take the caller's
     std::function<void(int64_t)> chunk = [&](int64_t t) {
         try {  // nothing may leave a thread (std::terminate): rethrown on the caller's below
+            const FlushDenormals same_mode = FlushDenormals::with(mode);
             for (int64_t c = next++; c < chunks; c = next++) fn(ctx, bounds(c), bounds(c + 1));
         } catch (...) {
             errors[static_cast<size_t>(t)] = std::current_exception();
@@ -550,9 +579,10 @@ const OpDef OPS[] = {
      softmax_kernel_apply_run},
     {"KernelFusion", 2, 1, R4, KF_IN, nullptr, 0, kernel_fusion_shapes, kernel_fusion_run},
     {"AdaptiveFusion", 3, 1, R4, AF_IN, nullptr, 0, adaptive_fusion_shapes, adaptive_fusion_run},
-    {"Reproject", 2, 1, R4, RP_IN, RP_ATTRS, 1, reproject_shapes, reproject_run, 1, RP_OPTIONAL},
+    {"Reproject", 2, 1, R4, RP_IN, RP_ATTRS, 1, reproject_shapes, reproject_run, 1, RP_OPTIONAL,
+     true},
     {"TemporalAccumulation", 11, 4, TA_RANKS, TA_IN, TA_ATTRS, 1, temporal_accumulation_shapes,
-     temporal_accumulation_run, 1, TA_OPTIONAL},
+     temporal_accumulation_run, 1, TA_OPTIONAL, true},
     {"WeightSharingFilter", 2, 1, R4, WSF_IN, WSF_ATTRS, 3, weight_sharing_filter_shapes,
      weight_sharing_filter_run},
     {"BilateralGrid", 2, 1, R4, BG_IN, BG_ATTRS, 2, bilateral_grid_shapes, bilateral_grid_run},

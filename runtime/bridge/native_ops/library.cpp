@@ -195,6 +195,7 @@ Status *compute(void *kernel_, void *context) {
             return nullptr;
         }
         int threads = threads_of_this_thread > 0 ? threads_of_this_thread : default_threads();
+        const rtd::FlushDenormals flushed(!def->to_the_bit);
         def->run(in, out, kernel->attrs, threads);
         return nullptr;
     } catch (const std::bad_alloc &) {
