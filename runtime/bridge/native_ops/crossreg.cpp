@@ -2,7 +2,7 @@
  * throughout, as every form of it) and CrossBilateralFilter (float32), the arithmetic of
  * runtime/kernels/cross_regression.py and cross_bilateral_filter.py, each sum adding the same
  * terms in the same order, in a cache- and SIMD-friendlier loop order (CrossBilateralFilter in
- * L1-sized chunks, CrossRegression 4 centres or pixels per lane; benchmarks/README.md,
+ * L1-sized chunks, CrossRegression 8 centres or pixels in lanes; benchmarks/README.md,
  * "crossreg's custom ops"). CrossRegression's exp is a vectorisable polynomial within ~1 ulp
  * of std::exp's. Like numba's fastmath,
  * this file lets the compiler contract a multiply and an add into an FMA in the AVX2 and
@@ -238,7 +238,10 @@ constexpr int64_t P = 6;
 constexpr int64_t NQ = 14;  // y (3), albedo (3), normal (3), sigma, var, target (3)
 constexpr int64_t NSUM = 61;
 
-constexpr int64_t L = 4;  // lanes: centres (regression) or pixels (reconstruction) at once
+/* Lanes: centres (regression) or pixels (reconstruction) at once. 8 doubles fill one AVX-512
+ * register or two AVX2 ones; measured against 4 at 720p, the same bits: 754 -> 507 ms with
+ * the AVX-512 clone, 648 -> 499 with AVX2 code only; 16 spills (558). */
+constexpr int64_t L = 8;
 
 /* The planes q (y, albedo, normal, sigma, var, target) of regression b are kept in a
  * phase-split, mirror-padded layout: padded column xp = x + R (R = stride * ceil(r / stride)
@@ -399,7 +402,7 @@ constexpr int64_t SEG = 32;  // taps per pass
 
 /* The 10 sums shared by the channels over `taps` taps, in their order (`_centre_sums`). */
 RTD_INLINE void sums_shared(const double (*RESTRICT v)[NV][L], int64_t taps, double (*RESTRICT acc)[L]) {
-    alignas(32) double s[10][L];
+    alignas(64) double s[10][L];
     for (int64_t i = 0; i < 10; ++i)
         for (int64_t l = 0; l < L; ++l) s[i][l] = acc[i][l];
     for (int64_t t = 0; t < taps; ++t)
@@ -424,7 +427,7 @@ RTD_INLINE void sums_shared(const double (*RESTRICT v)[NV][L], int64_t taps, dou
 /* Channel c's 17 sums over `taps` taps, in their order. */
 RTD_INLINE void sums_channel(const double (*RESTRICT v)[NV][L], int64_t taps, int64_t c,
                              double (*RESTRICT k)[L]) {
-    alignas(32) double s[17][L];
+    alignas(64) double s[17][L];
     for (int64_t i = 0; i < 17; ++i)
         for (int64_t l = 0; l < L; ++l) s[i][l] = k[i][l];
     for (int64_t t = 0; t < taps; ++t)
@@ -461,15 +464,15 @@ RTD_INLINE void sums_channel(const double (*RESTRICT v)[NV][L], int64_t taps, in
 RTD_CLONES void cr_regress(const CrArgs &a, int64_t begin, int64_t end) {
     const int64_t h = a.h, hc = a.hc, wc = a.wc, r = a.window / 2, s = a.stride, xx = a.xx;
     const int64_t row_len = a.row(), plane = h * row_len, rs = a.rb * s;
-    alignas(32) double acc[NSUM][L];
+    alignas(64) double acc[NSUM][L];
     double sums[NSUM], beta6[P];
-    alignas(32) double var[SEG][NV][L];  // the tap variables of up to SEG taps of a row
+    alignas(64) double var[SEG][NV][L];  // the tap variables of up to SEG taps of a row
     for (int64_t task = begin; task < end; ++task) {
         const int64_t b = task / hc, i = task - b * hc, cy = s * i;
         const double *q = a.q + b * NQ * plane;
         for (int64_t j0 = 0; j0 < wc; j0 += L) {
             // the centres' own values: phase 0, positions rb + j0 + l
-            alignas(32) double cv[11][L];
+            alignas(64) double cv[11][L];
             for (int64_t k = 0; k < 11; ++k)
                 for (int64_t l = 0; l < L; ++l) cv[k][l] = q[k * plane + cy * row_len + a.rb + j0 + l];
             for (int64_t k = 0; k < NSUM; ++k)
@@ -537,7 +540,7 @@ RTD_CLONES void cr_reconstruct(const CrArgs &a, int64_t begin, int64_t end) {
             const int64_t count = (w - ph + s - 1) / s;  // pixels of this phase
             const double *qp = q + y * row_len + ((ph + a.rb * s) % s) * a.xx + (ph + a.rb * s) / s;
             for (int64_t m0 = 0; m0 < count; m0 += L) {
-                alignas(32) double num0[L] = {}, num1[L] = {}, num2[L] = {}, den[L] = {};
+                alignas(64) double num0[L] = {}, num1[L] = {}, num2[L] = {}, den[L] = {};
                 const double *RESTRICT pv = qp + m0;  // pixel m0 + l at pv[k * plane + l]
                 for (int64_t dj = -lo; dj <= hi; ++dj) {
                     const int64_t jy = y / s + dj;
@@ -548,7 +551,7 @@ RTD_CLONES void cr_reconstruct(const CrArgs &a, int64_t begin, int64_t end) {
                         const int64_t ix0 = m0 + di;  // lane l's centre: ix0 + l
                         const double *RESTRICT cq = q + cy * row_len + a.rb + ix0;  // phase 0
                         const double *RESTRICT co = a.beta + ((b * hc + jy) * 3 * P) * a.bw + a.bm + ix0;
-                        alignas(32) double inside[L];  // 1 for a centre of the grid, 0 outside
+                        alignas(64) double inside[L];  // 1 for a centre of the grid, 0 outside
                         for (int64_t l = 0; l < L; ++l) inside[l] = ix0 + l >= 0 && ix0 + l < wc ? 1.0 : 0.0;
                         for (int64_t l = 0; l < L; ++l) {
                             const double in = inside[l];
