@@ -351,6 +351,16 @@ def train_command(
             "explicitly override the recipe's; the checkpoint meta records it."
         ),
     ] = Recipe.default,
+    flush_denormals: Annotated[
+        bool,
+        typer.Option(
+            "--flush-denormals/--keep-denormals",
+            help="Flush denormal floats to zero in this process (torch.set_flush_denormal, "
+            "x86): Intel cores compute each denormal with a microcode assist, and Isik21's "
+            "training ran 1.4x faster with them flushed on an Intel Xeon; results move by less "
+            "than 1.2e-38 a value. --keep-denormals: IEEE gradual underflow.",
+        ),
+    ] = True,
     version: VersionOption = False,
 ) -> None:
     """Train a denoiser on EXR sequences and write a checkpoint.
@@ -383,6 +393,8 @@ def train_command(
     with user_errors():
         get_layout(layout)  # a typo or a bad layout file fails before torch loads
     with user_errors(extra="train"):
+        import torch
+
         from rtdenoise.models.recipes import recipe_settings
         from rtdenoise.models.train import TrainSettings, train
 
@@ -433,19 +445,25 @@ def train_command(
             oversample=oversample_factors,
         )
         settings = dataclasses.replace(settings, **overrides)
-        result = train(
-            sequences,
-            output,
-            family=family,
-            model_config=model_config,
-            settings=settings,
-            resume=resume,
-            init_from=resolve_checkpoint(init_from) if init_from is not None else None,
-            val_dirs=val or [],
-            progress=progress,
-            command=shlex.join(["denoise-train", *sys.argv[1:]]),
-            log=lambda line: print(line, flush=True),
-        )
+        flushed_before = torch.tensor([1e-39]).item() == 0.0  # the mode as it came
+        if flush_denormals:  # before torch starts its worker threads, which inherit the mode
+            torch.set_flush_denormal(True)
+        try:
+            result = train(
+                sequences,
+                output,
+                family=family,
+                model_config=model_config,
+                settings=settings,
+                resume=resume,
+                init_from=resolve_checkpoint(init_from) if init_from is not None else None,
+                val_dirs=val or [],
+                progress=progress,
+                command=shlex.join(["denoise-train", *sys.argv[1:]]),
+                log=lambda line: print(line, flush=True),
+            )
+        finally:  # an in-process caller (a test, a notebook) gets its mode back
+            torch.set_flush_denormal(flushed_before)
     last = result.losses[-1] if result.losses else float("nan")
     print(
         f"wrote {result.checkpoint} at step {result.step} (last loss {last:.4f}, "
