@@ -32,6 +32,7 @@ from .learning_branch import branch_learning
 from .matmul_heads import matmul_heads
 from .ops import IR_VERSION, OPSET
 from .phase_split import phase_split_convs
+from .pool_offsets import pool_index_offsets
 from .pow_as_exp import pow_as_exp
 
 
@@ -182,6 +183,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     phase_split_convs(proto)  # a narrow K x K conv over its 4 output phases (phase_split.py)
     matmul_heads(proto)  # a head split by Slices as MatMuls (matmul_heads.py)
     pow_as_exp(proto)  # x ** c as exp(c log x): ORT's Pow is scalar (pow_as_exp.py)
+    pool_index_offsets(proto)  # a pool's index offsets from the shape (pool_offsets.py)
     expose_options(proto, wrapper.declared)
     # an online model's backward pass and optimiser step under an If: frozen frames skip them
     branch_learning(proto, wrapper.declared.online)
