@@ -30,8 +30,8 @@ def _ints(node: onnx.NodeProto, name: str) -> list[int] | None:
 
 
 def _is_unit_pool(node: onnx.NodeProto) -> bool:
-    """A MaxPool with both outputs whose window is one element (kernel, strides, dilations 1,
-    no padding, no auto_pad)."""
+    """A 2-D MaxPool with both outputs whose window is one element (kernel, strides, dilations
+    1, no padding, no auto_pad)."""
     if node.op_type != "MaxPool" or not is_standard(node) or len(node.output) != 2:
         return False
     kernel = _ints(node, "kernel_shape") or []
@@ -39,7 +39,7 @@ def _is_unit_pool(node: onnx.NodeProto) -> bool:
     auto_pad = next((a.s for a in node.attribute if a.name == "auto_pad"), b"NOTSET")
     storage = next((a.i for a in node.attribute if a.name == "storage_order"), 0)
     return (
-        bool(kernel)
+        len(kernel) == 2  # a 2-D pool: (N, C, H, W), the offsets (N, C, 1, 1)
         and all(k == 1 for k in kernel)
         and all(s == 1 for s in (_ints(node, "strides") or []))
         and all(d == 1 for d in (_ints(node, "dilations") or []))
