@@ -19,14 +19,7 @@ import numpy as np
 import onnx
 from onnx import helper, numpy_helper
 
-from .conv_widths import is_standard
-
-
-def _ints(node: onnx.NodeProto, name: str) -> list[int] | None:
-    for a in node.attribute:
-        if a.name == name:
-            return list(a.ints)
-    return None
+from .conv_widths import auto_pad, ints_attribute, is_standard
 
 
 def _is_unit_pool(node: onnx.NodeProto) -> bool:
@@ -34,17 +27,16 @@ def _is_unit_pool(node: onnx.NodeProto) -> bool:
     1, no padding, no auto_pad)."""
     if node.op_type != "MaxPool" or not is_standard(node) or len(node.output) != 2:
         return False
-    kernel = _ints(node, "kernel_shape") or []
-    pads = _ints(node, "pads") or []
-    auto_pad = next((a.s for a in node.attribute if a.name == "auto_pad"), b"NOTSET")
+    kernel = ints_attribute(node, "kernel_shape") or []
+    pads = ints_attribute(node, "pads") or []
     storage = next((a.i for a in node.attribute if a.name == "storage_order"), 0)
     return (
         len(kernel) == 2  # a 2-D pool: (N, C, H, W), the offsets (N, C, 1, 1)
         and all(k == 1 for k in kernel)
-        and all(s == 1 for s in (_ints(node, "strides") or []))
-        and all(d == 1 for d in (_ints(node, "dilations") or []))
+        and all(s == 1 for s in (ints_attribute(node, "strides") or []))
+        and all(d == 1 for d in (ints_attribute(node, "dilations") or []))
         and all(p == 0 for p in pads)
-        and auto_pad in (b"NOTSET", b"VALID")
+        and auto_pad(node) in (b"NOTSET", b"VALID")
         and storage == 0
     )
 
