@@ -44,23 +44,16 @@ void bilateral_grid_run(const Tensor *in, Tensor *out, const int64_t *attrs, int
 
 #ifdef RTD_HAS_MXCSR
 constexpr unsigned FTZ_DAZ = 0x8040;  // MXCSR flush-to-zero (bit 15), denormals-are-zero (6)
-unsigned FlushDenormals::current() { return _mm_getcsr(); }
-FlushDenormals::FlushDenormals(bool on) : saved_(_mm_getcsr()), set_(on) {
-    if (set_) _mm_setcsr(saved_ | FTZ_DAZ);
-}
-FlushDenormals::FlushDenormals(unsigned mode, int) : saved_(_mm_getcsr()), set_(true) {
-    _mm_setcsr(mode);
-}
-FlushDenormals::~FlushDenormals() {
-    if (set_) _mm_setcsr(saved_);
-}
+unsigned FpMode::current() { return _mm_getcsr(); }
+unsigned FpMode::flushed() { return _mm_getcsr() | FTZ_DAZ; }
+FpMode::FpMode(unsigned mode) : saved_(_mm_getcsr()) { _mm_setcsr(mode); }
+FpMode::~FpMode() { _mm_setcsr(saved_); }
 #else
-unsigned FlushDenormals::current() { return 0; }
-FlushDenormals::FlushDenormals(bool) {}
-FlushDenormals::FlushDenormals(unsigned, int) {}
-FlushDenormals::~FlushDenormals() {}
+unsigned FpMode::current() { return 0; }
+unsigned FpMode::flushed() { return 0; }
+FpMode::FpMode(unsigned) {}
+FpMode::~FpMode() {}
 #endif
-FlushDenormals FlushDenormals::with(unsigned mode) { return FlushDenormals(mode, 0); }
 
 /* ------------------------------------------------------------------ threads */
 
@@ -157,10 +150,10 @@ void parallel_rows(int64_t rows, int threads, int64_t work, void (*fn)(void *, i
     auto bounds = [&](int64_t c) { return rows * c / chunks; };
     std::atomic<int64_t> next{0};
     std::vector<std::exception_ptr> errors(static_cast<size_t>(team));
-    const unsigned mode = FlushDenormals::current();  // the workers take the caller's
+    const unsigned mode = FpMode::current();  // the workers take the caller's
     std::function<void(int64_t)> chunk = [&](int64_t t) {
         try {  // nothing may leave a thread (std::terminate): rethrown on the caller's below
-            const FlushDenormals same_mode = FlushDenormals::with(mode);
+            const FpMode same_mode(mode);
             for (int64_t c = next++; c < chunks; c = next++) fn(ctx, bounds(c), bounds(c + 1));
         } catch (...) {
             errors[static_cast<size_t>(t)] = std::current_exception();

@@ -54,31 +54,27 @@ struct OpDef {
     const int64_t *optional_defaults = nullptr;
     /* Kept to the bit with the torch form (float32 step by step, no fastmath on the numba
      * side): runs with the caller's floating-point mode. Every other op runs with denormals
-     * flushed to zero (FlushDenormals). */
+     * flushed to zero (FpMode::flushed). */
     bool to_the_bit = false;
 };
 
-/* The calling thread's SSE mode with flush-to-zero and denormals-are-zero set, restored when
- * the scope ends (x86-64; elsewhere nothing). An exponential weight below 2^-126 times a value
- * gives a denormal, and on Intel cores each denormal operand or result costs a microcode
- * assist (measured: a multiply-add loop 57x slower, CrossBilateralFilter at 320x240 372 ->
- * 22 ms); with them flushed a result moves by less than 1.2e-38. The host's own mode is
- * never left changed. */
-class FlushDenormals {
+/* The calling thread's SSE floating-point mode set to `mode` for the scope, and restored when
+ * it ends (x86-64; elsewhere nothing). `flushed()` is the thread's mode with flush-to-zero and
+ * denormals-are-zero set: an exponential weight below 2^-126 times a value gives a denormal,
+ * and on Intel cores each denormal operand or result costs a microcode assist (measured: a
+ * multiply-add loop 57x slower, CrossBilateralFilter at 320x240 372 -> 22 ms); flushed, a
+ * result moves by less than 1.2e-38. The host's own mode is never left changed. */
+class FpMode {
   public:
-    explicit FlushDenormals(bool on = true);
-    ~FlushDenormals();
-    FlushDenormals(const FlushDenormals &) = delete;
-    FlushDenormals &operator=(const FlushDenormals &) = delete;
-    /* The mode of the calling thread, to give the workers of a call the caller's mode. */
-    static unsigned current();
-    /* Set `mode` (a value of current()) on the calling thread for the scope. */
-    static FlushDenormals with(unsigned mode);
+    explicit FpMode(unsigned mode);
+    ~FpMode();
+    FpMode(const FpMode &) = delete;
+    FpMode &operator=(const FpMode &) = delete;
+    static unsigned current();  // the calling thread's mode
+    static unsigned flushed();  // current() with denormals flushed
 
   private:
-    FlushDenormals(unsigned mode, int);
     unsigned saved_ = 0;
-    bool set_ = false;
 };
 
 const OpDef *op_table(int *count);           // kernels.cpp (and filters.cpp): afn, wskp, nbg
@@ -91,7 +87,7 @@ const OpDef *conv_grad_op_table(int *count);  // conv_grad.cpp: conv weight grad
  * them), at most one per GRAIN of `work` (about the multiply-adds of the call: a thread
  * started for less costs more than it saves); fn(begin, end). Falls back to fewer threads
  * if threads cannot be started; an exception of fn is rethrown on the caller's thread. Every
- * chunk runs in the caller's floating-point mode (FlushDenormals). */
+ * chunk runs in the caller's floating-point mode (FpMode). */
 constexpr int64_t GRAIN = int64_t(1) << 16;
 void parallel_rows(int64_t rows, int threads, int64_t work, void (*fn)(void *, int64_t, int64_t),
                    void *ctx);

@@ -195,7 +195,7 @@ Status *compute(void *kernel_, void *context) {
             return nullptr;
         }
         int threads = threads_of_this_thread > 0 ? threads_of_this_thread : default_threads();
-        const rtd::FlushDenormals flushed(!def->to_the_bit);
+        const rtd::FpMode mode(def->to_the_bit ? rtd::FpMode::current() : rtd::FpMode::flushed());
         def->run(in, out, kernel->attrs, threads);
         return nullptr;
     } catch (const std::bad_alloc &) {
