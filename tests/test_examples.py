@@ -52,11 +52,8 @@ def test_readme_embed_snippet_is_the_example(tmp_path):
         np.testing.assert_array_equal(np.stack([got[c] for c in "RGB"]), expected)
 
 
-DEMOS = SHIPPED_DEMOS  # every shipped demo
-
-
 def test_the_demos_are_the_shipped_files():
-    assert sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) == sorted(DEMOS)
+    assert sorted(p.stem for p in MODELS_DIR.glob("*.onnx")) == sorted(SHIPPED_DEMOS)
 
 
 def test_plain_host_imports_only_onnxruntime_and_numpy():
@@ -70,7 +67,7 @@ def test_plain_host_imports_only_onnxruntime_and_numpy():
     assert imported == {"__future__", "collections", "json", "sys", "numpy", "onnxruntime"}
 
 
-@pytest.mark.parametrize("demo", DEMOS)
+@pytest.mark.parametrize("demo", SHIPPED_DEMOS)
 def test_plain_host_runs_every_demo_without_rtdenoise(demo):
     """Its own main (synthetic frames: 2 samples per pixel for affinity), rtdenoise blocked."""
     path = EXAMPLES / "plain_onnxruntime_host.py"
@@ -84,7 +81,7 @@ def test_plain_host_runs_every_demo_without_rtdenoise(demo):
     assert proc.stdout.count("output (3, 48, 64)") == 3
 
 
-@pytest.mark.parametrize("demo", DEMOS)
+@pytest.mark.parametrize("demo", SHIPPED_DEMOS)
 @pytest.mark.parametrize("fast_kernels", [True, False])
 def test_plain_host_matches_denoiser_over_8_frames(demo, fast_kernels):
     """The same 8 frames with a camera cut before frame 5: equal within 1e-5, state fed back

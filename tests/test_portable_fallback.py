@@ -27,7 +27,6 @@ from rtdenoise.cli.run import main
 sys.argv[1:] = sys.argv[2:]
 main()
 """
-DEMOS = SHIPPED_DEMOS
 FRAMES = 4  # of the committed sequence seq_000 (64x64), state carried from frame to frame
 
 
@@ -135,9 +134,13 @@ def test_every_shipped_demo_runs_on_the_cpp_library_without_numba(tmp_path, monk
     if not native_cpp.available():
         pytest.skip(f"the C++ library was not built: {native_cpp.unavailable_reason()}")
     monkeypatch.delenv(native_cpp.ENV_SWITCH, raising=False)
-    assert set(DEMOS) == {p.stem for p in MODELS_DIR.glob("*.onnx")}  # every shipped demo
-    report, outputs = run_demos_without_numba(tmp_path, DEMOS)
-    assert report == {"bridges": ["native-cpp"] * len(DEMOS), "warnings": [], "imported": []}
+    assert set(SHIPPED_DEMOS) == {p.stem for p in MODELS_DIR.glob("*.onnx")}  # every shipped demo
+    report, outputs = run_demos_without_numba(tmp_path, SHIPPED_DEMOS)
+    assert report == {
+        "bridges": ["native-cpp"] * len(SHIPPED_DEMOS),
+        "warnings": [],
+        "imported": [],
+    }
     for demo, (got, want) in outputs.items():
         assert got.shape == want.shape == (FRAMES, 3, 64, 64), demo
         assert relative_error(got, want) <= 1e-5, demo
