@@ -28,6 +28,7 @@ from rtdenoise.runtime.sequences.samples import feature_channels, sample_feature
 from . import ops as onnx_ops
 from .conv_widths import pad_conv_inputs, pad_conv_widths
 from .deploy import to_deploy
+from .layout_forms import layout_forms
 from .learning_branch import branch_learning
 from .matmul_heads import matmul_heads
 from .ops import IR_VERSION, OPSET
@@ -187,6 +188,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     expose_options(proto, wrapper.declared)
     # an online model's backward pass and optimiser step under an If: frozen frames skip them
     branch_learning(proto, wrapper.declared.online)
+    layout_forms(proto)  # AVX-512 conv forms under If(layout.nchwc16) (layout_forms.py)
     del proto.metadata_props[:]
     for key, value in wrapper.declared.metadata().items():
         proto.metadata_props.add(key=key, value=value)

@@ -137,6 +137,7 @@ class Denoiser:
         self._session = opened.session
         self.bridge = opened.bridge  # how ONNX Runtime reaches the fast kernels, "" for none
         self.fast_kernels = bool(opened.bridge)
+        self.layout = opened.layout  # conv forms for this CPU (runtime/layout.py), "" none
         self.threads = opened.threads
         self.pin_threads = opened.pin_threads
         self.shared_arena = opened.shared_arena

@@ -23,6 +23,7 @@ import onnxruntime as ort
 from .contract import Contract, ContractError
 from .errors import InputError
 from .external_data import check_external_data
+from .layout import has_layout_flag, nchwc_block, with_layout
 from .memory import share_cpu_arena
 from .placement import INTRA_OP_AFFINITIES, allowed_cpus, ort_thread_affinities
 from .static_check import check_custom_nodes, custom_op_types, fill_optional_attributes
@@ -183,6 +184,7 @@ class Session:
     pin_threads: bool
     shared_arena: bool
     device: tuple[str, int] | None  # None: host memory
+    layout: str = ""  # the conv forms chosen (runtime/layout.py): "nchwc16", "plain", "" none
 
 
 def open_session(
@@ -223,6 +225,7 @@ def open_session(
         options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
     wanted = resolve_providers(providers)
     names = provider_names(wanted)
+    payload, layout = _layout_chosen(payload, options, names)
     shared = shared_arena and names == ["CPUExecutionProvider"] and share_cpu_arena(options)
     try:
         session = ort.InferenceSession(payload, options, providers=wanted)
@@ -243,7 +246,29 @@ def open_session(
         pin_threads=threads is None if pin_threads is None else pin_threads,
         shared_arena=shared,
         device=_state_device(session, got),
+        layout=layout,
     )
+
+
+def _layout_chosen(
+    payload: str | bytes, options: ort.SessionOptions, providers: list[str]
+) -> tuple[str | bytes, str]:
+    """`payload` with its `layout.nchwc16` flag written for this CPU (runtime/layout.py): the
+    AVX-512 conv forms where ORT's CPU convs use 16-channel blocks and the CPU provider alone
+    runs the model; and which ("nchwc16", "plain"; "" for a model without the flag)."""
+    data = payload if isinstance(payload, bytes) else Path(payload).read_bytes()
+    if not has_layout_flag(data):
+        return payload, ""
+    try:
+        nchwc16 = providers == ["CPUExecutionProvider"] and nchwc_block() == 16
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    written = with_layout(data, nchwc16)
+    if written is None:
+        return payload, ""
+    if not isinstance(payload, bytes):
+        options.add_session_config_entry(EXTERNAL_DATA_FOLDER, str(Path(payload).parent))
+    return written, "nchwc16" if nchwc16 else "plain"
 
 
 def _optional_attributes_written(payload: str | bytes, options: ort.SessionOptions) -> str | bytes:
