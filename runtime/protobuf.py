@@ -1,7 +1,8 @@
 """A minimal reader of the protobuf wire format, for what the runtime reads of an ONNX file
 without the `onnx` package (which it must not need): external-data locations
 (`external_data.py`) and the custom nodes' recorded shapes (`static_check.py`); and the few
-writers that `static_check.fill_optional_attributes` needs to add an attribute to a node."""
+writers that `static_check.fill_optional_attributes` needs to add an attribute to a node and
+`layout.with_layout` to rewrite an initializer."""
 
 from __future__ import annotations
 
