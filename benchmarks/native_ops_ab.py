@@ -10,6 +10,7 @@ the largest relative difference of B's outputs from A's.
     ... rebuild ...
     python benchmarks/native_ops_ab.py --lib before=/tmp/before.so \\
         --lib after=runtime/bridge/librtdenoise_ops.so --op CrossRegression --size 1280x720
+    python benchmarks/native_ops_ab.py ... --op TemporalAccumulation --attr per_tap=3
 
 Both files speak to ORT alone (each session registers its own); their thread count is each
 library's default (every core, or RTDENOISE_OPS_THREADS).
@@ -44,6 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", action="append", default=None, help="WIDTHxHEIGHT (repeatable)")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--pause", type=float, default=0.1, help="seconds after each call")
+    ap.add_argument(
+        "--attr", action="append", default=[], help="NAME=INT: an op attribute (repeatable)"
+    )
     args = ap.parse_args(argv)
     libs = [tuple(s.split("=", 1)) for s in args.lib]
     if len(libs) != 2:
@@ -56,6 +60,7 @@ def main(argv: list[str] | None = None) -> int:
     for op in args.op:
         spec = get_spec(op)
         attrs = dict(spec.default_attrs)
+        attrs.update({k: int(v) for k, v in (a.split("=", 1) for a in args.attr)})
         for size in args.size or ["1280x720"]:
             w, h = (int(v) for v in size.split("x"))
             inputs = spec.example_inputs((1, 3, h, w), attrs, np.random.default_rng(0))

@@ -16,6 +16,7 @@ import torch
 from rtdenoise.models.base import DenoiserModel
 from rtdenoise.models.frame_loop import FrameLoop
 from rtdenoise.runtime.denoiser import Denoiser
+from rtdenoise.runtime.layout import has_layout_flag
 from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: F401  (re-exported)
 
 
@@ -54,11 +55,15 @@ def validate(
     *,
     tolerance: float = 1e-4,
 ) -> ValidationReport:
-    """Compare PyTorch with ORT-fast and ORT-portable over `frames`."""
+    """Compare PyTorch with ORT-fast and ORT-portable over `frames`; a model with layout
+    forms (docs/contract.md) on the fast path in each form."""
     reference = torch_outputs(model.eval(), frames)
     report = ValidationReport(tolerance=tolerance)
-    for path, fast in (("ort_fast", True), ("ort_portable", False)):
-        denoiser = Denoiser(onnx_bytes, fast_kernels=fast)
+    paths: list[tuple[str, bool, str | None]] = [("ort_fast", True, None)]
+    if has_layout_flag(onnx_bytes):
+        paths = [("ort_fast", True, "plain"), ("ort_fast_nchwc16", True, "nchwc16")]
+    for path, fast, layout in (*paths, ("ort_portable", False, None)):
+        denoiser = Denoiser(onnx_bytes, fast_kernels=fast, layout=layout)
         report.errors[path] = [
             frame_error(denoiser.process(frame), ref)
             for frame, ref in zip(frames, reference, strict=True)

@@ -104,6 +104,9 @@ class Denoiser:
         learned, across size changes too (`reset(learning=True)` restarts it once).
     overrides: values of the model's run-time options (`contract.options`, e.g.
         {"kernel_size": 7}), fed as its overridable initializers `option.<name>` every frame.
+    layout: which form of a model's layout-dependent convs loads (docs/contract.md, "Layout
+        forms"): "nchwc16" (AVX-512's blocks), "plain", or None (default: chosen for this CPU
+        and provider, runtime/layout.py). `layout` says which loaded ("" for a model without).
     """
 
     def __init__(
@@ -121,6 +124,7 @@ class Denoiser:
         learn_every: int = 1,
         relearn_at_cuts: bool = False,
         overrides: Mapping[str, float] | None = None,
+        layout: str | None = None,
     ) -> None:
         self.source, payload, ops = checked_model(model)
         opened = open_session(
@@ -133,11 +137,12 @@ class Denoiser:
             providers=providers,
             shared_arena=shared_arena,
             ops=ops,
+            layout=layout,
         )
         self._session = opened.session
         self.bridge = opened.bridge  # how ONNX Runtime reaches the fast kernels, "" for none
         self.fast_kernels = bool(opened.bridge)
-        self.layout = opened.layout  # conv forms for this CPU (runtime/layout.py), "" none
+        self.layout = opened.layout  # the conv forms loaded (runtime/layout.py), "" none
         self.threads = opened.threads
         self.pin_threads = opened.pin_threads
         self.shared_arena = opened.shared_arena

@@ -198,6 +198,7 @@ def open_session(
     providers: Sequence[Provider] | str | None,
     shared_arena: bool,
     ops: frozenset[str] | None = None,
+    layout: str | None = None,
 ) -> Session:
     """Load `payload` (a path or the model bytes; `source` names it in errors; `ops` its
     rtdenoise op types, which pick the fast path) with the options `Denoiser` documents."""
@@ -225,7 +226,7 @@ def open_session(
         options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
     wanted = resolve_providers(providers)
     names = provider_names(wanted)
-    payload, layout = _layout_chosen(payload, options, names)
+    payload, layout = _layout_chosen(payload, options, names, layout)
     shared = shared_arena and names == ["CPUExecutionProvider"] and share_cpu_arena(options)
     try:
         session = ort.InferenceSession(payload, options, providers=wanted)
@@ -251,18 +252,22 @@ def open_session(
 
 
 def _layout_chosen(
-    payload: str | bytes, options: ort.SessionOptions, providers: list[str]
+    payload: str | bytes, options: ort.SessionOptions, providers: list[str], asked: str | None
 ) -> tuple[str | bytes, str]:
-    """`payload` with its `layout.nchwc16` flag written for this CPU (runtime/layout.py): the
-    AVX-512 conv forms where ORT's CPU convs use 16-channel blocks and the CPU provider alone
-    runs the model; and which ("nchwc16", "plain"; "" for a model without the flag)."""
+    """`payload` with its `layout.nchwc16` flag written (runtime/layout.py): as `asked`
+    ("nchwc16" or "plain"), or for None the AVX-512 conv forms where ORT's CPU convs use
+    16-channel blocks and the CPU provider alone runs the model; and which form ("" for a
+    model without the flag)."""
+    if asked not in (None, "nchwc16", "plain"):
+        raise InputError(f"layout={asked!r}: expected 'nchwc16', 'plain' or None (this CPU's)")
     data = payload if isinstance(payload, bytes) else Path(payload).read_bytes()
     if not has_layout_flag(data):
         return payload, ""
     try:
-        nchwc16 = providers == ["CPUExecutionProvider"] and nchwc_block() == 16
+        auto = providers == ["CPUExecutionProvider"] and nchwc_block() == 16
     except ValueError as exc:
         raise InputError(str(exc)) from None
+    nchwc16 = auto if asked is None else asked == "nchwc16"
     written = with_layout(data, nchwc16)
     if written is None:
         return payload, ""

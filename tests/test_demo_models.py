@@ -98,6 +98,8 @@ def test_demo_onnx_matches_its_checkpoint_over_eight_frames(family, sequences):
     report = validate(model, (MODELS_DIR / f"{family}.onnx").read_bytes(), frames, tolerance=1e-4)
     assert report.passed, report.errors
     assert all(len(errors) == 8 for errors in report.errors.values())
+    if family == "nbg":  # it holds AVX-512 conv forms: each form checked on the fast path
+        assert set(report.errors) == {"ort_fast", "ort_fast_nchwc16", "ort_portable"}
 
 
 @pytest.mark.parametrize("family", FAMILIES)

@@ -156,17 +156,22 @@ def test_the_block_follows_the_environment(monkeypatch: pytest.MonkeyPatch) -> N
 
 def test_shipped_nbg_agrees_across_the_two_forms(monkeypatch: pytest.MonkeyPatch) -> None:
     """demo:nbg carries both forms; each agrees with the other over 8 frames with state fed
-    back (the export validated the machine's form against PyTorch, the suite's torch-vs-ORT
-    tests run this machine's form), and the runtime reports which it chose."""
+    back (the export validates both against PyTorch: test_demo_models), asked for by name or
+    through RTDENOISE_NCHWC_BLOCK, and the runtime reports which it loaded."""
     outputs = {}
-    for block in (8, 16):
-        monkeypatch.setenv(ENV, str(block))
-        den = Denoiser("demo:nbg")
-        assert den.layout == ("nchwc16" if block == 16 else "plain")
+    for layout in ("plain", "nchwc16"):
+        den = Denoiser("demo:nbg", layout=layout)
+        assert den.layout == layout
         frames = synthetic_frames(den.required_buffers, 8, 40, 56, seed=3)
-        outputs[block] = [np.array(den.process(f)) for f in frames]
-    for a, b in zip(outputs[8], outputs[16], strict=True):
+        outputs[layout] = [np.array(den.process(f)) for f in frames]
+    for a, b in zip(outputs["plain"], outputs["nchwc16"], strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+    for block, layout in ((8, "plain"), (16, "nchwc16")):
+        monkeypatch.setenv(ENV, str(block))
+        assert Denoiser("demo:nbg").layout == layout
     monkeypatch.delenv(ENV)
     expected = "nchwc16" if nchwc_block() == 16 else "plain"
     assert Denoiser("demo:nbg").layout == expected
+    with pytest.raises(InputError, match="layout='avx512'"):
+        Denoiser("demo:nbg", layout="avx512")
+    assert Denoiser("demo:wskp", layout="nchwc16").layout == ""  # no forms to choose
