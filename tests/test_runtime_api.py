@@ -50,6 +50,7 @@ def test_denoiser_keeps_its_signature():
     assert list(params) == [
         "model", "fast_kernels", "threads", "pin_threads", "spinning", "providers",
         "io_binding", "shared_arena", "learn", "learn_every", "relearn_at_cuts", "overrides",
+        "layout",
     ]  # fmt: skip
     process = inspect.signature(rtdenoise.runtime.Denoiser.process).parameters
     assert list(process) == ["self", "buffers", "reset", "out", "channels_last"]
