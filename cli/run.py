@@ -175,7 +175,8 @@ def print_report(report: dict[str, Any], model: str, console: Console) -> None:
     console.print(
         f"{where}{f' ({kept} kept from an earlier run)' if kept else ''}; median per frame: "
         f"read {t['read']:.1f} ms, denoise {t['denoise']:.1f} ms, write {t['write']:.1f} ms"
-        + (f"; custom ops: {KERNELS_LABEL.get(kernels, kernels)}" if kernels is not None else ""),
+        + (f"; custom ops: {KERNELS_LABEL.get(kernels, kernels)}" if kernels is not None else "")
+        + (f"; conv forms: {report['layout']}" if report.get("layout") else ""),
         soft_wrap=True,
     )
 

@@ -12,6 +12,7 @@ import pytest
 from shipped_demos import SHIPPED_DEMOS
 
 from rtdenoise.runtime.denoiser import Denoiser
+from rtdenoise.runtime.layout import nchwc_block
 from rtdenoise.runtime.sequences.frames import (
     find_frames,
     match_references,
@@ -131,6 +132,9 @@ def test_denoise_run_demo_uses_the_shipped_model(tmp_path):
     assert f"{DEFAULT_MODEL} over 3 sequences" in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["seq_000", "seq_001", "seq_002"]
     assert len(list((tmp_path / "seq_000").glob("frame_*.exr"))) == 8
+    # the default (demo:nbg) holds layout forms: the timing line says which loaded
+    layout = "nchwc16" if nchwc_block() == 16 else "plain"
+    assert res.output.count(f"conv forms: {layout}") == 3, res.output
 
 
 def test_shared_cpu_arena_changes_no_number():

@@ -175,3 +175,40 @@ def test_shipped_nbg_agrees_across_the_two_forms(monkeypatch: pytest.MonkeyPatch
     with pytest.raises(InputError, match="layout='avx512'"):
         Denoiser("demo:nbg", layout="avx512")
     assert Denoiser("demo:wskp", layout="nchwc16").layout == ""  # no forms to choose
+
+
+def test_convs_without_a_cheaper_form_stay() -> None:
+    """Left alone: a conv whose output is not a graph input's size (a half-scale layer), one
+    with too few taps per output (afn's fusion conv, 16 x 3 x 3), and zero channels that
+    another node reads too."""
+    rng = np.random.default_rng(4)
+    inits: list[onnx.TensorProto] = []
+
+    def conv(name: str, src: str, cout: int, cin: int, k: int) -> onnx.NodeProto:
+        w = rng.normal(0, 0.1, (cout, cin, k, k)).astype(np.float32)
+        inits.append(numpy_helper.from_array(w, f"{name}.w"))
+        inits.append(numpy_helper.from_array(np.zeros(cout, np.float32), f"{name}.b"))
+        return helper.make_node(
+            "Conv", [src, f"{name}.w", f"{name}.b"], [name], name=name, pads=[k // 2] * 4
+        )
+
+    nodes = [
+        helper.make_node("AveragePool", ["x"], ["half"], kernel_shape=[2, 2], strides=[2, 2]),
+        helper.make_node("Concat", ["half", "half"], ["half32"], axis=1),
+        conv("small", "half32", 8, 32, 5),  # half scale: no graph input has its size
+        conv("few", "x", 8, 16, 3),  # 144 taps per output, below MIN_PHASE_TAPS
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 16, "h", "w"])],
+        [helper.make_tensor_value_info(n, TensorProto.FLOAT, None) for n in ("small", "few")],
+        inits,
+    )
+    proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)], ir_version=10)
+    assert layout_forms(proto) == []
+    assert LAYOUT_FLAG not in {i.name for i in proto.graph.initializer}
+
+    shared = guide_net()  # its zero channels are a graph output as well
+    shared.graph.output.append(helper.make_tensor_value_info("zeros", TensorProto.FLOAT, None))
+    assert layout_forms(shared) == ["row_phases: conv2"]

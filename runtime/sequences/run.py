@@ -429,6 +429,8 @@ def _run_sequence(
         "timing_ms": {k: statistics.median(v) if v else None for k, v in times.items()},
         # how the custom ops ran: "native-cpp", "native", "extensions", "" (portable bodies)
         "kernels": getattr(backend, "bridge", None),
+        # which conv forms loaded (docs/contract.md, "Layout forms"): "nchwc16", "plain", ""
+        "layout": getattr(backend, "layout", None),
     }
 
 
