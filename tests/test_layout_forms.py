@@ -162,7 +162,8 @@ def test_shipped_nbg_agrees_across_the_two_forms(monkeypatch: pytest.MonkeyPatch
     for layout in ("plain", "nchwc16"):
         den = Denoiser("demo:nbg", layout=layout)
         assert den.layout == layout
-        frames = synthetic_frames(den.required_buffers, 8, 40, 56, seed=3)
+        frames = synthetic_frames(den.required_buffers, 6, 40, 56, seed=3)
+        frames += synthetic_frames(den.required_buffers, 2, 41, 57, seed=4)  # odd, a new size
         outputs[layout] = [np.array(den.process(f)) for f in frames]
     for a, b in zip(outputs["plain"], outputs["nchwc16"], strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
