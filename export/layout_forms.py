@@ -112,15 +112,23 @@ def _shape(value: onnx.ValueInfoProto) -> list[int | str]:
 
 
 def _branch(
-    name: str, nodes: list[onnx.NodeProto], result: str, like: onnx.ValueInfoProto, consts=None
+    name: str,
+    nodes: list[onnx.NodeProto],
+    result: str,
+    like: onnx.ValueInfoProto,
+    consts: dict[str, np.ndarray] | None = None,
 ) -> onnx.GraphProto:
+    """An If branch: `nodes` (reading outer values by name), `consts` as its initializers,
+    the value `result` shaped as `like` its output."""
     shape = _shape(like)
     out = helper.make_tensor_value_info(result, TensorProto.FLOAT, shape or None)
     initializers = [numpy_helper.from_array(v, k) for k, v in (consts or {}).items()]
     return helper.make_graph(nodes, name, [], [out], initializers)
 
 
-def _activated(nodes: list[onnx.NodeProto], activation, source: str, tag: str) -> str:
+def _activated(
+    nodes: list[onnx.NodeProto], activation: onnx.NodeProto | None, source: str, tag: str
+) -> str:
     """Append a copy of `activation` (if any) reading `source`; the name of the last value."""
     if activation is None:
         return source
