@@ -172,6 +172,7 @@ def compare_command(
     import platform
 
     from rtdenoise.runtime.denoiser import Denoiser
+    from rtdenoise.runtime.layout import nchwc_block
     from rtdenoise.runtime.sequences import compare
     from rtdenoise.shipped import MODELS_DIR
 
@@ -216,6 +217,8 @@ def compare_command(
         machine = f"{platform.machine()}, {__import__('os').cpu_count()} CPUs"
         result = {
             "machine": machine,
+            # ORT's CPU conv block here: 16 picks models' AVX-512 conv forms (runtime/layout.py)
+            "nchwc_block": nchwc_block(),
             "threads": threads,
             "device": device,
             "repeats": repeats,
