@@ -35,6 +35,7 @@ from .ops import IR_VERSION, OPSET
 from .phase_split import phase_split_convs
 from .pool_offsets import pool_index_offsets
 from .pow_as_exp import pow_as_exp
+from .scatter_pad import slice_scatter_as_pad
 
 
 def to_onnx(
@@ -185,6 +186,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     matmul_heads(proto)  # a head split by Slices as MatMuls (matmul_heads.py)
     pow_as_exp(proto)  # x ** c as exp(c log x): ORT's Pow is scalar (pow_as_exp.py)
     pool_index_offsets(proto)  # a pool's index offsets from the shape (pool_offsets.py)
+    slice_scatter_as_pad(proto)  # a slice_scatter into zeros as a Pad (scatter_pad.py)
     expose_options(proto, wrapper.declared)
     # an online model's backward pass and optimiser step under an If: frozen frames skip them
     branch_learning(proto, wrapper.declared.online)
