@@ -35,6 +35,7 @@ from .ops import IR_VERSION, OPSET
 from .phase_split import phase_split_convs
 from .pool_offsets import pool_index_offsets
 from .pow_as_exp import pow_as_exp
+from .relu_backward import relu_backward_as_mul
 from .scatter_pad import slice_scatter_as_pad
 
 
@@ -187,6 +188,7 @@ def export_model(model: DenoiserModel) -> onnx.ModelProto:
     pow_as_exp(proto)  # x ** c as exp(c log x): ORT's Pow is scalar (pow_as_exp.py)
     pool_index_offsets(proto)  # a pool's index offsets from the shape (pool_offsets.py)
     slice_scatter_as_pad(proto)  # a slice_scatter into zeros as a Pad (scatter_pad.py)
+    relu_backward_as_mul(proto)  # a ReLU's backward Where as a multiply (relu_backward.py)
     expose_options(proto, wrapper.declared)
     # an online model's backward pass and optimiser step under an If: frozen frames skip them
     branch_learning(proto, wrapper.declared.online)
