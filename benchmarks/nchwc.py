@@ -36,9 +36,11 @@ from rtdenoise.runtime import (  # noqa: E402
     bridge,  # noqa: E402
     resolve_model,
 )
+from rtdenoise.runtime.layout import with_layout  # noqa: E402
 from rtdenoise.runtime.memory import tune_allocator  # noqa: E402
 from rtdenoise.runtime.sequences.synthetic import synthetic_frames  # noqa: E402
 from rtdenoise.runtime.session import ALLOW_SPINNING  # noqa: E402
+from rtdenoise.runtime.static_check import custom_op_types  # noqa: E402
 
 VARIANTS = {
     "default": ({}, ort.GraphOptimizationLevel.ORT_ENABLE_ALL),
@@ -47,7 +49,7 @@ VARIANTS = {
 }
 
 
-def options(level, profile: str | None = None, optimized: str | None = None):
+def options(level, profile: str | None = None, optimized: str | None = None, ops=None):
     so = ort.SessionOptions()
     so.add_session_config_entry(ALLOW_SPINNING, "0")
     if level is not None:
@@ -57,7 +59,7 @@ def options(level, profile: str | None = None, optimized: str | None = None):
         so.profile_file_prefix = profile
     if optimized:
         so.optimized_model_filepath = optimized
-    bridge.register_fast_kernels(so)
+    bridge.register_fast_kernels(so, None, ops)  # the bridge Denoiser picks for these ops
     return so
 
 
@@ -136,9 +138,14 @@ def pad_conv_chain(path: str, multiple: int = 8) -> bytes:
 
 
 def session_denoiser(model: str, kwargs: dict, level, profile: str | None = None) -> Denoiser:
+    """A Denoiser of `model` whose session is made again with `level` (and `profile`): the
+    same fast-kernel bridge and conv forms (runtime/layout.py) as Denoiser picks."""
     den = Denoiser(model, fast_kernels=True)
     source = kwargs.pop("source", str(resolve_model(model)))
-    den._session = ort.InferenceSession(source, options(level, profile), **kwargs)
+    data = source if isinstance(source, bytes) else open(source, "rb").read()
+    data = with_layout(data, den.layout == "nchwc16") or data
+    opts = options(level, profile, ops=custom_op_types(data))
+    den._session = ort.InferenceSession(data, opts, **kwargs)
     den._binding = den._session.io_binding()
     return den
 
