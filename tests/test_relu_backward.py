@@ -10,6 +10,7 @@ import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
+from rtdenoise.export.learning_branch import all_nodes
 from rtdenoise.export.relu_backward import relu_backward_as_mul
 from rtdenoise.shipped import MODELS_DIR
 
@@ -73,14 +74,5 @@ def test_other_wheres_stay(kwargs: dict) -> None:
 
 def test_the_shipped_crossreg_backward_has_no_relu_where() -> None:
     proto = onnx.load(MODELS_DIR / "crossreg.onnx")
-    ops: list[str] = []
-
-    def walk(graph: onnx.GraphProto) -> None:
-        for node in graph.node:
-            ops.append(node.op_type)
-            for a in node.attribute:
-                if a.HasField("g"):
-                    walk(a.g)
-
-    walk(proto.graph)
+    ops = [n.op_type for n in all_nodes(proto.graph)]  # the learning branch included
     assert "LessOrEqual" not in ops and ops.count("Greater") >= 9
