@@ -126,9 +126,10 @@ class Denoiser:
         overrides: Mapping[str, float] | None = None,
         layout: str | None = None,
     ) -> None:
-        self.source, payload, ops = checked_model(model)
+        checked = checked_model(model)
+        self.source = checked.source
         opened = open_session(
-            payload,
+            checked.payload,
             self.source,
             fast_kernels=fast_kernels,
             threads=threads,
@@ -136,8 +137,9 @@ class Denoiser:
             spinning=spinning,
             providers=providers,
             shared_arena=shared_arena,
-            ops=ops,
+            ops=checked.ops,
             layout=layout,
+            layout_forms=checked.layout_forms,
         )
         self._session = opened.session
         self.bridge = opened.bridge  # how ONNX Runtime reaches the fast kernels, "" for none

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import os
 
-from .protobuf import Malformed, fields, length_delimited, spans, varint_field
+from .protobuf import Malformed, fields, length_delimited, rewrite_graph_fields, varint_field
 
 LAYOUT_FLAG = "layout.nchwc16"  # export/layout_forms.py writes it: keep the two names in step
 ENV = "RTDENOISE_NCHWC_BLOCK"
-_MODEL_GRAPH, _GRAPH_INIT = 7, 5
+_GRAPH_INIT = 5  # GraphProto.initializer
 _TENSOR_TYPE, _TENSOR_NAME, _TENSOR_RAW, _BOOL = 2, 8, 9, 9  # TensorProto fields; BOOL = 9
 
 
@@ -50,36 +50,15 @@ def with_layout(data: bytes, nchwc16: bool) -> bytes | None:
     graph has no such initializer (or the bytes are not a model)."""
     if not has_layout_flag(data):
         return None
-    try:
-        buf = memoryview(data)
-        out, changed = bytearray(), False
-        for number, start, end, value in spans(buf):
-            if number == _MODEL_GRAPH and isinstance(value, memoryview):
-                graph = _graph_with_flag(value, nchwc16)
-                if graph is not None:
-                    out += length_delimited(number, graph)
-                    changed = True
-                    continue
-            out += buf[start:end]
-        return bytes(out) if changed else None
-    except Malformed:
-        return None
-
-
-def _graph_with_flag(graph: memoryview, nchwc16: bool) -> bytes | None:
-    out, changed = bytearray(), False
     flag = (
         varint_field(_TENSOR_TYPE, _BOOL)
         + length_delimited(_TENSOR_NAME, LAYOUT_FLAG.encode())
         + length_delimited(_TENSOR_RAW, b"\x01" if nchwc16 else b"\x00")
     )
-    for number, start, end, value in spans(graph):
-        if number == _GRAPH_INIT and isinstance(value, memoryview) and _is_flag(value):
-            out += length_delimited(number, flag)
-            changed = True
-        else:
-            out += graph[start:end]
-    return bytes(out) if changed else None
+    try:
+        return rewrite_graph_fields(data, _GRAPH_INIT, lambda t: flag if _is_flag(t) else None)
+    except Malformed:
+        return None
 
 
 def _is_flag(tensor: memoryview) -> bool:

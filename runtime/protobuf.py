@@ -1,12 +1,12 @@
 """A minimal reader of the protobuf wire format, for what the runtime reads of an ONNX file
 without the `onnx` package (which it must not need): external-data locations
 (`external_data.py`) and the custom nodes' recorded shapes (`static_check.py`); and the few
-writers that `static_check.fill_optional_attributes` needs to add an attribute to a node and
-`layout.with_layout` to rewrite an initializer."""
+writers and `rewrite_graph_fields`, with which `static_check.fill_optional_attributes` adds an
+attribute to a node and `layout.with_layout` rewrites an initializer."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 
 class Malformed(ValueError):
@@ -97,3 +97,27 @@ def length_delimited(number: int, payload: bytes) -> bytes:
 def varint_field(number: int, value: int) -> bytes:
     """Field `number` holding the int `value` (int64 two's complement when negative)."""
     return encode_varint(number << 3) + encode_varint(value % (1 << 64))
+
+
+MODEL_GRAPH = 7  # ModelProto.graph
+
+
+def rewrite_graph_fields(
+    data: bytes, number: int, rewrite: Callable[[memoryview], bytes | None]
+) -> bytes | None:
+    """The model `data` with each field `number` of its main graph (e.g. 1 a node, 5 an
+    initializer) replaced by `rewrite(payload)` where that is not None, every other byte kept;
+    None when nothing was replaced. Raises Malformed for bytes that are not a message."""
+    buf = memoryview(data)
+    out, changed = bytearray(), False
+    for n, start, end, value in spans(buf):
+        if n == MODEL_GRAPH and isinstance(value, memoryview):
+            graph = bytearray()
+            for gn, gstart, gend, gvalue in spans(value):
+                new = rewrite(gvalue) if gn == number and isinstance(gvalue, memoryview) else None
+                graph += value[gstart:gend] if new is None else length_delimited(gn, new)
+                changed |= new is not None
+            out += length_delimited(n, bytes(graph))
+        else:
+            out += buf[start:end]
+    return bytes(out) if changed else None

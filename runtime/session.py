@@ -86,12 +86,14 @@ def resolve_model(spec: str | os.PathLike) -> Path:
 
 
 class CheckedModel(NamedTuple):
-    """A model that passed the checks: the name errors give it, what ONNX Runtime loads, and
-    the op types of its rtdenoise nodes (what a fast path must hold)."""
+    """A model that passed the checks: the name errors give it, what ONNX Runtime loads, the
+    op types of its rtdenoise nodes (what a fast path must hold), and whether it holds layout
+    forms (runtime/layout.py: then its bytes are rewritten at load)."""
 
     source: str
     payload: str | bytes
     ops: frozenset[str]
+    layout_forms: bool
 
 
 def checked_model(model: ModelSource) -> CheckedModel:
@@ -102,12 +104,12 @@ def checked_model(model: ModelSource) -> CheckedModel:
         source, payload = "<model bytes>", bytes(model)
         check_external_data(payload)
         check_custom_nodes(payload, source)
-        return CheckedModel(source, payload, custom_op_types(payload))
+        return CheckedModel(source, payload, custom_op_types(payload), has_layout_flag(payload))
     path = resolve_model(model)
     data = path.read_bytes()  # read once for the checks
     check_external_data(path, data)  # every external data file inside the model's folder
     check_custom_nodes(data, str(path))  # attributes vs shapes
-    return CheckedModel(str(path), str(path), custom_op_types(data))
+    return CheckedModel(str(path), str(path), custom_op_types(data), has_layout_flag(data))
 
 
 def resolve_providers(providers: Sequence[Provider] | str | None) -> list[Provider]:
@@ -199,6 +201,7 @@ def open_session(
     shared_arena: bool,
     ops: frozenset[str] | None = None,
     layout: str | None = None,
+    layout_forms: bool = True,
 ) -> Session:
     """Load `payload` (a path or the model bytes; `source` names it in errors; `ops` its
     rtdenoise op types, which pick the fast path) with the options `Denoiser` documents."""
@@ -226,7 +229,7 @@ def open_session(
         options.add_session_config_entry(ALLOW_SPINNING, "1" if spinning else "0")
     wanted = resolve_providers(providers)
     names = provider_names(wanted)
-    payload, layout = _layout_chosen(payload, options, names, layout)
+    payload, layout = _layout_chosen(payload, options, names, layout, layout_forms)
     shared = shared_arena and names == ["CPUExecutionProvider"] and share_cpu_arena(options)
     try:
         session = ort.InferenceSession(payload, options, providers=wanted)
@@ -252,14 +255,20 @@ def open_session(
 
 
 def _layout_chosen(
-    payload: str | bytes, options: ort.SessionOptions, providers: list[str], asked: str | None
+    payload: str | bytes,
+    options: ort.SessionOptions,
+    providers: list[str],
+    asked: str | None,
+    forms: bool,
 ) -> tuple[str | bytes, str]:
     """`payload` with its `layout.nchwc16` flag written (runtime/layout.py): as `asked`
     ("nchwc16" or "plain"), or for None the AVX-512 conv forms where ORT's CPU convs use
     16-channel blocks and the CPU provider alone runs the model; and which form ("" for a
-    model without the flag)."""
+    model without the flag; `forms` False says so without reading it)."""
     if asked not in (None, "nchwc16", "plain"):
         raise InputError(f"layout={asked!r}: expected 'nchwc16', 'plain' or None (this CPU's)")
+    if not forms:
+        return payload, ""
     data = payload if isinstance(payload, bytes) else Path(payload).read_bytes()
     if not has_layout_flag(data):
         return payload, ""

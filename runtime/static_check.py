@@ -20,10 +20,18 @@ import ast
 from rtdenoise.ops import DOMAIN, SPECS
 
 from .errors import InputError
-from .protobuf import Malformed, fields, length_delimited, spans, varint, varint_field
+from .protobuf import (
+    MODEL_GRAPH,
+    Malformed,
+    fields,
+    length_delimited,
+    rewrite_graph_fields,
+    varint,
+    varint_field,
+)
 
 # Field numbers (onnx/onnx.proto3).
-_MODEL_GRAPH = 7
+
 _GRAPH_NODE, _GRAPH_INIT, _GRAPH_INPUT, _GRAPH_OUTPUT, _GRAPH_VALUE_INFO = 1, 5, 11, 12, 13
 _NODE_INPUT, _NODE_OP, _NODE_DOMAIN, _NODE_ATTR, _NODE_NAME = 1, 4, 7, 5, 3
 _ATTR_NAME, _ATTR_I, _ATTR_TYPE, _ATTR_INT = 1, 3, 20, 2  # AttributeProto.INT = 2
@@ -84,7 +92,7 @@ def _initializer(buf: memoryview) -> tuple[str, list[Dim]]:
 
 def _graph(data: bytes) -> memoryview | None:
     for n, v in fields(memoryview(data)):
-        if n == _MODEL_GRAPH and isinstance(v, memoryview):
+        if n == MODEL_GRAPH and isinstance(v, memoryview):
             return v
     return None
 
@@ -234,27 +242,12 @@ def fill_optional_attributes(data: bytes) -> bytes | None:
     bytes are not a model). onnxruntime-extensions refuses a node without one of the op's
     declared attributes, so a model exported before the attribute existed (every shipped demo
     lacks TemporalAccumulation's per_tap) is loaded through this on that bridge."""
+    if DOMAIN.encode() not in data:
+        return None
     try:
-        if DOMAIN.encode() not in data:
-            return None
-        buf = memoryview(data)
-        out, changed = bytearray(), False
-        for n, start, end, v in spans(buf):
-            graph = _filled_graph(v) if n == _MODEL_GRAPH and isinstance(v, memoryview) else None
-            changed |= graph is not None
-            out += buf[start:end] if graph is None else length_delimited(n, graph)
-        return bytes(out) if changed else None
+        return rewrite_graph_fields(data, _GRAPH_NODE, _filled_node)
     except Malformed:
         return None
-
-
-def _filled_graph(graph: memoryview) -> bytes | None:
-    out, changed = bytearray(), False
-    for n, start, end, v in spans(graph):
-        node = _filled_node(v) if n == _GRAPH_NODE and isinstance(v, memoryview) else None
-        changed |= node is not None
-        out += graph[start:end] if node is None else length_delimited(n, node)
-    return bytes(out) if changed else None
 
 
 def _filled_node(node: memoryview) -> bytes | None:
