@@ -39,6 +39,7 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from .conv_widths import auto_pad, ints_attribute, is_standard
+from .graph_index import GraphIndex
 
 LAYOUT_FLAG = "layout.nchwc16"  # runtime/layout.py writes it: keep the two names in step
 BLOCK = 16  # AVX-512's NCHWc block
@@ -49,31 +50,14 @@ FUSED_ACTIVATIONS = ("Relu", "LeakyRelu", "Sigmoid", "Tanh", "HardSigmoid")  # O
 MIN_PHASE_TAPS = 400
 
 
-class _Graph:
-    """The main graph's initializers, readers, graph inputs and inferred values."""
+class _Graph(GraphIndex):
+    """A GraphIndex of the main graph with its inferred values and its graph inputs."""
 
     def __init__(self, proto: onnx.ModelProto) -> None:
-        graph = proto.graph
-        self.graph = graph
-        self.inits = {i.name: i for i in graph.initializer}
-        self.readers: dict[str, list[onnx.NodeProto]] = {}
-        self.producer: dict[str, onnx.NodeProto] = {}
-        for n in graph.node:
-            for i in n.input:
-                self.readers.setdefault(i, []).append(n)
-            for o in n.output:
-                self.producer[o] = n
-        self.outputs = {o.name for o in graph.output}
+        super().__init__(proto.graph)
         inferred = onnx.shape_inference.infer_shapes(proto).graph
         self.values = {v.name: v for v in (*inferred.input, *inferred.value_info, *inferred.output)}
-        self.inputs = [v for v in graph.input if v.name not in self.inits]
-
-    def array(self, name: str) -> np.ndarray:
-        return numpy_helper.to_array(self.inits[name])
-
-    def sole_reader(self, name: str) -> onnx.NodeProto | None:
-        readers = self.readers.get(name, [])
-        return readers[0] if len(readers) == 1 and name not in self.outputs else None
+        self.inputs = [v for v in proto.graph.input if v.name not in self.consts]
 
     def fused_activation(self, conv: onnx.NodeProto) -> onnx.NodeProto | None:
         """The activation ORT fuses into `conv`: its only reader, of a fusable type."""
@@ -94,9 +78,9 @@ def _plain_conv(node: onnx.NodeProto, g: _Graph) -> bool:
         node.op_type == "Conv"
         and is_standard(node)
         and len(node.input) == 3
-        and node.input[1] in g.inits
-        and node.input[2] in g.inits
-        and len(g.inits[node.input[1]].dims) == 4
+        and node.input[1] in g.consts
+        and node.input[2] in g.consts
+        and g.consts[node.input[1]].ndim == 4
         and next((a.i for a in node.attribute if a.name == "group"), 1) == 1
         and all(s == 1 for s in ints_attribute(node, "strides") or [1, 1])
         and all(d == 1 for d in ints_attribute(node, "dilations") or [1, 1])
@@ -187,7 +171,7 @@ def row_phases(g: _Graph, conv: onnx.NodeProto) -> bool:
     """The row-phase form of a conv with 8 (mod 16) output channels (module docstring)."""
     if not _plain_conv(conv, g):
         return False
-    w, b = g.array(conv.input[1]), g.array(conv.input[2])
+    w, b = g.consts[conv.input[1]], g.consts[conv.input[2]]
     c, cin, kh, kw = w.shape
     if c % BLOCK != BLOCK // 2 or cin * kh * kw < MIN_PHASE_TAPS:
         return False
@@ -269,7 +253,7 @@ def zero_inputs_dropped(g: _Graph, conv: onnx.NodeProto) -> bool:
         or not _is(g.sole_reader(concat.input[-1]), concat)
     ):
         return False
-    w = g.array(conv.input[1])
+    w = g.consts[conv.input[1]]
     parts = [g.values.get(name) for name in concat.input[:-1]]
     counts = [_shape(v)[1] if v is not None and len(_shape(v)) == 4 else None for v in parts]
     if not all(isinstance(k, int) for k in counts):

@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-from onnx import TensorProto, helper, numpy_helper
+from onnx import TensorProto, helper
 
 from .conv_widths import is_standard
+from .graph_index import GraphIndex
 
 
 def _zero_scalar(name: str, consts: dict[str, np.ndarray]) -> bool:
@@ -29,31 +30,20 @@ def relu_backward_as_mul(proto: onnx.ModelProto) -> list[str]:
     """Rewrite, in place, each ReLU backward Where of the main graph (module docstring);
     returns the names of the Where nodes replaced."""
     graph = proto.graph
-    consts = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
-    producer = {o: n for n in graph.node for o in n.output}
-    readers: dict[str, int] = {}
-    for n in graph.node:
-        for i in n.input:
-            readers[i] = readers.get(i, 0) + 1
-    outputs = {o.name for o in graph.output}
+    g = GraphIndex(graph)
     replace: dict[str, list[onnx.NodeProto]] = {}  # Where output -> its nodes
     drop: set[str] = set()  # LessOrEqual outputs
     done = []
     for where in graph.node:
         if where.op_type != "Where" or not is_standard(where) or len(where.input) != 3:
             continue
-        mask = producer.get(where.input[0])
-        relu = producer.get(mask.input[0]) if mask is not None else None
+        mask = g.made_by(where.input[0], "LessOrEqual")
         if (
             mask is None
-            or mask.op_type != "LessOrEqual"
-            or not is_standard(mask)
-            or readers.get(mask.output[0]) != 1
-            or mask.output[0] in outputs
-            or relu is None
-            or relu.op_type != "Relu"
-            or not _zero_scalar(mask.input[1], consts)
-            or not _zero_scalar(where.input[1], consts)
+            or g.sole_reader(mask.output[0]) is None
+            or g.made_by(mask.input[0], "Relu") is None
+            or not _zero_scalar(mask.input[1], g.consts)
+            or not _zero_scalar(where.input[1], g.consts)
         ):
             continue
         base = where.name or where.output[0]

@@ -20,6 +20,7 @@ import onnx
 from onnx import helper, numpy_helper
 
 from .conv_widths import is_standard
+from .graph_index import GraphIndex
 
 
 def _attr(node: onnx.NodeProto, name: str, default=None):
@@ -39,25 +40,8 @@ def _swap_axis(perm: list[int]) -> int | None:
     return k if perm == expected else None
 
 
-class _Pattern:
-    """The graph's producers, readers and constant initializers."""
-
-    def __init__(self, graph: onnx.GraphProto) -> None:
-        self.consts = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
-        self.producer = {o: n for n in graph.node for o in n.output}
-        self.readers: dict[str, list[onnx.NodeProto]] = {}
-        for n in graph.node:
-            for i in n.input:
-                self.readers.setdefault(i, []).append(n)
-        self.outputs = {o.name for o in graph.output}
-
-    def made_by(self, name: str, op: str) -> onnx.NodeProto | None:
-        node = self.producer.get(name)
-        return node if node is not None and node.op_type == op and is_standard(node) else None
-
-    def const(self, name: str) -> list[int] | None:
-        value = self.consts.get(name)
-        return None if value is None else [int(v) for v in value.reshape(-1)]
+class _Pattern(GraphIndex):
+    """A GraphIndex that also finds Transposes swapping axes 0 and k."""
 
     def transposed_by(self, name: str, k: int) -> onnx.NodeProto | None:
         node = self.made_by(name, "Transpose")
