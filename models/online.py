@@ -93,14 +93,15 @@ def adam_step(
     adam: Adam,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """(theta', m', v', t') after one Adam step (Kingma & Ba Alg. 1; t counts from 0), or the
-    inputs unchanged where `learn` <= 0.5. All elementwise: exports to standard ONNX ops."""
+    inputs unchanged where `learn` <= 0.5 (or is False: a boolean gate the caller shares with
+    its other learned states). All elementwise: exports to standard ONNX ops."""
     t1 = t + 1.0
     m1 = adam.beta1 * m + (1.0 - adam.beta1) * grad
     v1 = adam.beta2 * v + (1.0 - adam.beta2) * grad * grad
     m_hat = m1 / (1.0 - torch.pow(adam.beta1, t1))
     v_hat = v1 / (1.0 - torch.pow(adam.beta2, t1))
     stepped = theta - adam.lr * m_hat / (torch.sqrt(v_hat) + adam.eps)
-    gate = learn > 0.5
+    gate = learn if learn.dtype == torch.bool else learn > 0.5
     return (
         torch.where(gate, stepped, theta),
         torch.where(gate, m1, m),

@@ -474,6 +474,11 @@ def _parse_online(raw: Any, state: tuple[StateSpec, ...], fail) -> dict[str, Any
             spec = names.get(control)
             if spec is None or spec.channels != 1 or spec.size != (1, 1):
                 raise fail(f"{KEY_ONLINE} {key} {control!r} is not a listed 1-value state")
+    statistics = raw.get("statistics", [])
+    if not isinstance(statistics, list) or any(
+        not isinstance(n, str) or n not in names or names[n].size != (1, 1) for n in statistics
+    ):
+        raise fail(f"{KEY_ONLINE} statistics must list states of size [1, 1], got {statistics!r}")
     if raw.get("keep") is not None:
         learned = learning_states(raw)
         if not learned or any(name not in names for name in learned):
@@ -482,12 +487,14 @@ def _parse_online(raw: Any, state: tuple[StateSpec, ...], fail) -> dict[str, Any
 
 
 def learning_states(online: dict[str, Any] | None) -> tuple[str, ...]:
-    """The states an online model learns (weights, optimiser moments, step): what a reset that
-    keeps the learning (`keep` = 1) carries over."""
+    """The states an online model learns (weights, optimiser moments, step, and running
+    `statistics` such as crossreg's gain curve): what a reset that keeps the learning (`keep` =
+    1) carries over."""
     if not online:
         return ()
     moments = online.get("moments") or []
-    names = [online.get("parameters"), *moments, online.get("step")]
+    statistics = online.get("statistics") or []
+    names = [online.get("parameters"), *moments, online.get("step"), *statistics]
     return tuple(n for n in names if isinstance(n, str))
 
 

@@ -299,6 +299,10 @@ def _meta_state(**entry) -> dict[str, str]:
         ),
         ({"metadata": {"rtdenoise.inputs": '{"buffers": ["rgb"]}'}}, "unknown buffer 'rgb'"),
         ({"reset_shape": [1]}, "'reset' must be a rank-0 scalar"),
+        (
+            {"metadata": {"rtdenoise.online": '{"statistics": ["acc"]}'}},
+            "statistics must list states of size \\[1, 1\\], got \\['acc'\\]",
+        ),
         ({"extra_input": "normal"}, "graph input 'normal' is neither a listed buffer"),
     ],
 )

@@ -76,6 +76,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..base import DenoiserModel, FamilyConfig, StateSpec, register_family
+from ..gain_curve import GainCurve
 from ..online import Adam, ParameterLayout, adam_step, traced_step
 from ..ops.cross_bilateral_filter import cross_bilateral_filter
 from ..ops.cross_regression import cross_regression
@@ -139,6 +140,17 @@ class CrossRegConfig(FamilyConfig):
     # the idea of cross-regression) and still compresses lights far above it. The U-Net sees
     # log1p of the radiance whatever k, and history_clamp stays in those log units
     log_scale: float = 1.0
+    # an online gain curve over the output's brightness, learned from the noisy radiance (an
+    # unbiased label) and applied to the output (models/gain_curve.py; not in the paper: 0 = off,
+    # else its nodes K): it undoes the log domain's darkening that no theta can, while the
+    # history and the loss stay Choi24's. Its statistics are a learned state like theta
+    gain_curve_bins: int = 0
+    gain_curve_range: float = 4.0
+    gain_curve_decay: float = 0.8
+    gain_curve_eps: float = 1e-3
+    gain_curve_prior: float = 64.0
+    gain_curve_blur: int = 1
+    gain_curve_limit: float = 2.0
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -158,6 +170,21 @@ class CrossRegConfig(FamilyConfig):
             raise self.fail(f"alpha_min must be in [0, 1), got {self.alpha_min}")
         if not 0.0 < self.log_scale <= 1e6:
             raise self.fail(f"log_scale must be in (0, 1e6], got {self.log_scale}")
+        if self.gain_curve_bins and (
+            self.gain_curve_bins < 2
+            or self.gain_curve_range <= 0
+            or not 0 <= self.gain_curve_decay < 1
+            or self.gain_curve_eps <= 0
+            or self.gain_curve_prior <= 0
+            or self.gain_curve_blur < 0
+            or self.gain_curve_limit < 1
+        ):
+            raise self.fail(
+                "gain_curve needs bins 0 (off) or >= 2, range > 0, decay in [0, 1), eps > 0, "
+                f"prior > 0, blur >= 0 and limit >= 1, got {self.gain_curve_bins}, "
+                f"{self.gain_curve_range}, {self.gain_curve_decay}, {self.gain_curve_eps}, "
+                f"{self.gain_curve_prior}, {self.gain_curve_blur}, {self.gain_curve_limit}"
+            )
         if self.history_clamp < 0.0:
             raise self.fail(f"history_clamp must be >= 0 (0 = off), got {self.history_clamp}")
         if not 0.0 <= self.temporal_loss_weight <= 1.0:
@@ -282,6 +309,18 @@ class CrossReg(DenoiserModel):
             StateSpec("freeze", 1, size=one),  # host control: 1 = no update this frame
             StateSpec("keep", 1, size=one),  # host control: 1 = a reset keeps theta and Adam's
         )
+        self.gain_curve = None
+        if config.gain_curve_bins:  # its statistics: sum w out y, sum w out^2 per node
+            self.gain_curve = GainCurve(
+                config.gain_curve_bins,
+                config.gain_curve_range,
+                config.gain_curve_decay,
+                config.gain_curve_eps,
+                config.gain_curve_prior,
+                config.gain_curve_blur,
+                config.gain_curve_limit,
+            )
+            self.state_specs += (StateSpec("gain_curve", 2 * config.gain_curve_bins, size=one),)
 
     # -- the contract ----------------------------------------------------------------------
 
@@ -302,6 +341,7 @@ class CrossReg(DenoiserModel):
             "keep": "keep",
             "controls": ["freeze", "keep"],
             "layout": self.layout.to_json(),
+            "statistics": ["gain_curve"] if self.gain_curve else [],
         }
 
     def declaration(self):
@@ -445,8 +485,9 @@ class CrossReg(DenoiserModel):
                 with stage("backward"):
                     (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
 
+        # one gate for every learned state (the export branches the update on it)
+        learn = 1.0 - torch.clamp(state["freeze"].reshape(-1)[:1], 0.0, 1.0) > 0.5
         with stage("adam"):
-            learn = 1.0 - torch.clamp(state["freeze"].reshape(-1)[:1], 0.0, 1.0)
             theta_next, m, v, t = adam_step(
                 theta if attached else theta.detach(),
                 grad,
@@ -462,6 +503,14 @@ class CrossReg(DenoiserModel):
         if not attached:
             output = output.detach()
         as_state = {"theta": theta_next, "adam_m": m, "adam_v": v, "adam_t": t}
+        if self.gain_curve:  # 8. the gain curve (not in the paper), this frame's pixels included
+            with stage("gain curve"):
+                stats = torch.where(relearn, 0.0, state["gain_curve"].reshape(1, -1))
+                label = 0.5 * (color + color_b)  # unbiased: its mean is the reference
+                now = self.gain_curve.statistics(output.detach(), label)
+                stats = torch.where(learn, self.gain_curve.decay * stats + now, stats)
+                output = self.gain_curve.apply(output, stats)
+            as_state["gain_curve"] = stats
         next_state = {k: x.reshape(1, -1, 1, 1) for k, x in as_state.items()}
         history = torch.cat((hat, pilot_a, pilot_b), dim=1)
         next_state.update(
