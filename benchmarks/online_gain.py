@@ -16,6 +16,11 @@ previous pilots) are replaced by the reference itself, log1p(ref), in eq. (12)'s
 What learning gains then is what any self-supervised label could buy at most with this
 optimiser (one Adam step per frame at the config's lr) on these frames.
 
+`--ort demo:crossreg` (or an .onnx) runs the exported model in ONNX Runtime instead, learning
+and frozen from its shipped init (the numbers issue 25 asks for; no variants):
+
+    python benchmarks/online_gain.py validation/long_000 validation/seq_00{0..7} --ort demo:crossreg
+
 `--steps-per-frame K` takes K Adam steps on each frame's loss instead of one (the frame is shown
 from the first, as shipped; the K - 1 more re-run it from the same history and keep only theta
 and Adam's moments): what more update per frame buys, with either label.
@@ -100,6 +105,20 @@ def run(model, seq, learn: bool, oracle: bool = False, steps_per_frame: int = 1)
     return [mse_tonemapped(out, ref) for out, ref in zip(frames, seq.reference, strict=True)]
 
 
+def run_ort(onnx: str, seq, learn: bool) -> list[float]:
+    """Per-frame tonemapped MSE of the exported model in ONNX Runtime (`Denoiser`, the fast
+    path), learning or frozen from its shipped init, a cut restarting the history only."""
+    from rtdenoise.runtime import Denoiser
+
+    den = Denoiser(onnx, learn=learn)
+    cuts = set(seq.cuts)
+    mses = []
+    for t in range(seq.reference.shape[0]):
+        frame = {k: v[t] for k, v in seq.buffers.items()}
+        mses.append(mse_tonemapped(den.process(frame, reset=t in cuts), seq.reference[t]))
+    return mses
+
+
 def pooled(mses: list[float], skip: int) -> float:
     return psnr_from_mse(float(np.mean(mses[skip:])))
 
@@ -118,8 +137,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--steps-per-frame", type=int, default=1, help="Adam steps on each frame's loss"
     )
+    ap.add_argument(
+        "--ort",
+        default=None,
+        help="an exported .onnx (or demo:crossreg) run in ONNX Runtime instead: learning vs "
+        "frozen from its shipped init (no variants)",
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args(argv)
+    if args.ort:
+        return main_ort(args)
     if args.threads:
         torch.set_num_threads(args.threads)
     ckpt = read_checkpoint(args.checkpoint or demo_model("crossreg", ".pt"))
@@ -170,6 +197,28 @@ def main(argv: list[str] | None = None) -> int:
             )
         gains = [r["gain"] for r in results[name].values()]
         print(f"{name:12s} mean gain {np.mean(gains):+.3f} dB over {len(gains)} sequences")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+def main_ort(args: argparse.Namespace) -> int:
+    """`--ort`: each sequence learning and frozen in ONNX Runtime; the gain and the pooled
+    tau-PSNR of the frames from --skip on."""
+    results = {}
+    for path in args.sequences:
+        seq = load_sequence(path, build_model("crossreg", {}).inputs)
+        learn, frozen = run_ort(args.ort, seq, True), run_ort(args.ort, seq, False)
+        row = {"learning": pooled(learn, args.skip), "frozen": pooled(frozen, args.skip)}
+        row["gain"] = row["learning"] - row["frozen"]
+        results[seq.name] = row
+        print(
+            f"ort {seq.name:10s} learning {row['learning']:.2f} frozen {row['frozen']:.2f} dB "
+            f"(frames >= {args.skip}), gain {row['gain']:+.2f}",
+            flush=True,
+        )
+    gains = [r["gain"] for r in results.values()]
+    print(f"ort mean gain {np.mean(gains):+.3f} dB, least {min(gains):+.3f}, {len(gains)} seqs")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0

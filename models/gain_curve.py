@@ -37,7 +37,7 @@ class GainCurve:
     eps: float = 1e-3  # w = 1 / (out^2 + eps)
     prior: float = 64.0  # pixel-weights of gain 1 in every node
     blur: int = 1  # the statistics binned by the brightness of (2 blur + 1)^2 pixels
-    limit: float = 2.0  # gains within [1 / limit, limit]
+    limit: float = 1.5  # gains within [1 / limit, limit]
 
     def nodes(self, brightness: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Each pixel's lower node index (N, H W) int64 and its weight on the upper one, from

@@ -23,7 +23,7 @@ def _halves(dark: float, bright: float, size: int = 32) -> torch.Tensor:
 def test_each_brightness_learns_its_own_gain():
     """A dark region whose label is twice its output and a light whose label equals it: the
     curve doubles the dark pixels and leaves the light (a single gain would do neither)."""
-    curve = GainCurve(bins=32, range=4.0, blur=1, prior=1.0)
+    curve = GainCurve(bins=32, range=4.0, blur=1, prior=1.0, limit=4.0)
     out = _halves(0.05, 5.0)
     label = _halves(0.10, 5.0)
     stats = curve.statistics(out, label)

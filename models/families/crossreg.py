@@ -150,7 +150,7 @@ class CrossRegConfig(FamilyConfig):
     gain_curve_eps: float = 1e-3
     gain_curve_prior: float = 64.0
     gain_curve_blur: int = 1
-    gain_curve_limit: float = 2.0
+    gain_curve_limit: float = 1.5
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
