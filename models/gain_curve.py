@@ -14,9 +14,13 @@ unlike pixels and does not follow the camera. The gain here is a curve over the 
 brightness u = log1p(mean over channels of out): K nodes spread over u in [0, range], each
 pixel's statistics split between its two nearest nodes (linear hat weights) and the curve read
 back the same way, so dark noisy pixels and lights each get their own gain, learned from every
-pixel of their brightness. The statistics are discounted sums over frames (weight `decay` on the
-past), a learned state of 2 K values that a camera cut keeps and a frame-size change does not
-touch; `prior` pixel-weights of gain 1 keep a node no pixel reached at 1.
+pixel of their brightness. A pixel is binned by its neighbourhood's brightness, not its own
+(`guide`). The statistics are discounted sums over frames (weight `decay` on the past), a
+learned state of 2 K values that a camera cut keeps and a frame-size change does not touch;
+`prior` pixel-weights of gain 1 hold a node few pixels reached near 1, and `limit` bounds every
+gain: a node of the output's brightness holds both a light the log domain darkened (a thin
+emitter's pixels, whose label is far brighter) and the dark pixels the filter lit beside it,
+which the same gain would light further.
 """
 
 from __future__ import annotations

@@ -464,7 +464,8 @@ def _parse_options(raw: Any, fail) -> tuple[RuntimeOption, ...]:
 def _parse_online(raw: Any, state: tuple[StateSpec, ...], fail) -> dict[str, Any]:
     """`rtdenoise.online`: a JSON object; its controls `freeze` (the state a host sets to 1 to
     skip a frame's update) and `keep` (1: a reset keeps the learning) must name listed
-    single-value states, and the learning states (`parameters`, `moments`, `step`) listed ones."""
+    single-value states, the learning states (`parameters`, `moments`, `step`) listed ones, and
+    `statistics` (other learned states) listed states of size [1, 1]."""
     if not isinstance(raw, dict):
         raise fail(f"{KEY_ONLINE} must be a JSON object, got {type(raw).__name__}")
     names = {s.name: s for s in state}

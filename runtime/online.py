@@ -3,9 +3,9 @@ the controls it writes before each frame and what a new history keeps of the lea
 
 `freeze` (1 skips this frame's update) follows `learn` / `learn_every`. `keep` (1: the graph
 goes on from the learned weights after a reset) is 1 on every history but the first and those
-after `restart_learning()`; the learned states (weights, optimiser moments, step) then carry
-over the reset, across a size change too. A model without `keep` restarts its learning at
-every reset, as the graph decides alone.
+after `restart_learning()`; the learned states (weights, optimiser moments, step, statistics)
+then carry over the reset, across a size change too. A model without `keep` restarts its
+learning at every reset, as the graph decides alone.
 """
 
 from __future__ import annotations
