@@ -15,16 +15,20 @@
 6. self-supervised loss (eqs. (11)-(13)) against the other buffer's pilot and the warped previous
    pilots; one gradient step (`torch.autograd.grad` through the U-Net and the filter's
    registered backward) and one Adam step -> theta_t, the next state;
-7. output = max(expm1(f), 0).
+7. output = max(expm1(f), 0);
+8. (an option, not in the paper; the demo has it) a gain curve over the output's brightness,
+   fitted online to the mean of the two noisy buffers (`models.gain_curve`), scales the output:
+   it undoes the log domain's darkening, which no theta can.
 
 The forward pass of step 4 is the one displayed and the one back-propagated (it uses
 theta_{t-1}); no gradient crosses frames. The state carries the history (log output and both
-pilots), the geometry (normal, depth) and the learning: theta, Adam's m and v, the step count t,
-the frame's loss (output only) and two host-set controls, read even when reset = 1: `freeze`
-(1 skips this frame's update) and `keep` (1: a reset keeps theta, m, v and t). Reset (first
-frame, camera cut) restarts the history; without `keep` (a zero state, as a host that knows
-nothing of it leaves it) also the learning, from theta at initialisation (the module's
-parameters: Glorot-uniform, seeded, or pretrained), m = v = t = 0.
+pilots), the geometry (normal, depth) and the learning: theta, Adam's m and v, the step count t
+(and the gain curve's sums), the frame's loss (output only) and two host-set controls, read even
+when reset = 1: `freeze` (1 skips this frame's update) and `keep` (1: a reset keeps theta, m, v,
+t and the curve). Reset (first frame, camera cut) restarts the history; without `keep` (a zero
+state, as a host that knows nothing of it leaves it) also the learning, from theta at
+initialisation (the module's parameters: Glorot-uniform, seeded, or pretrained), m = v = t = 0
+and an empty curve (gain 1).
 
 Pretraining (an option beyond the paper, which starts from the random init): `denoise-train
 --family crossreg` trains the initial theta offline, supervised, with the online update frozen
@@ -485,7 +489,8 @@ class CrossReg(DenoiserModel):
                 with stage("backward"):
                     (grad,) = torch.autograd.grad(loss, theta, retain_graph=attached)
 
-        # one gate for every learned state (the export branches the update on it)
+        # one gate for every learned state (export/learning_branch.py puts theta's update under
+        # an If on it; the gain curve's sums stay in the main graph, where the output reads them)
         learn = 1.0 - torch.clamp(state["freeze"].reshape(-1)[:1], 0.0, 1.0) > 0.5
         with stage("adam"):
             theta_next, m, v, t = adam_step(
