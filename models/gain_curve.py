@@ -45,8 +45,10 @@ class GainCurve:
 
     def nodes(self, brightness: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Each pixel's lower node index (N, H W) int64 and its weight on the upper one, from
-        its `brightness` (N, 1, H, W) linear."""
+        its `brightness` (N, 1, H, W) linear. A NaN brightness (an output a diverged model made
+        NaN) reads node 0: cast to an integer it would index out of range."""
         u = torch.log1p(torch.clamp(brightness, min=0.0)).flatten(1)
+        u = torch.where(torch.isnan(u), 0.0, u)
         p = torch.clamp(u * ((self.bins - 1) / self.range), 0.0, self.bins - 1.0)
         lower = torch.clamp(torch.floor(p), max=self.bins - 2.0)
         return lower.to(torch.int64), p - lower

@@ -115,3 +115,14 @@ def test_the_curve_is_learned_state():
 def test_config_errors_name_the_gain_curve(bad):
     with pytest.raises(ValueError, match="gain_curve needs"):
         CrossRegConfig.of(bad)
+
+
+def test_nan_and_inf_brightness_read_valid_nodes():
+    """A NaN output (a diverged model's) reads node 0 and +inf the last: never an index out of
+    range (ONNX Runtime's ScatterElements refuses one; the runtime then recovers the frame)."""
+    curve = GainCurve(bins=8)
+    out = torch.tensor([[[[float("nan"), float("inf"), 0.5, -1.0]]]]).expand(1, 3, 1, 4)
+    lower, f = curve.nodes(out[:, :1])
+    assert lower.tolist() == [[0, 6, 0, 0]] and float(f[0, 1]) == 1.0
+    stats = curve.statistics(out, out)  # sums of NaN where the output is NaN: no error
+    assert stats.shape == (1, 16)
