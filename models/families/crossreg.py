@@ -73,7 +73,7 @@ Choices (all in `CrossRegConfig`, stored in checkpoints), from the official code
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import torch
 import torch.nn.functional as F
@@ -149,12 +149,12 @@ class CrossRegConfig(FamilyConfig):
     # else its nodes K): it undoes the log domain's darkening that no theta can, while the
     # history and the loss stay Choi24's. Its statistics are a learned state like theta
     gain_curve_bins: int = 0
-    gain_curve_range: float = 4.0
-    gain_curve_decay: float = 0.8
-    gain_curve_eps: float = 1e-3
-    gain_curve_prior: float = 64.0
-    gain_curve_blur: int = 1
-    gain_curve_limit: float = 1.5
+    gain_curve_range: float = GainCurve.range
+    gain_curve_decay: float = GainCurve.decay
+    gain_curve_eps: float = GainCurve.eps
+    gain_curve_prior: float = GainCurve.prior
+    gain_curve_blur: int = GainCurve.blur
+    gain_curve_limit: float = GainCurve.limit
 
     def validate(self) -> None:
         w, s = self.regression_window, self.regression_stride
@@ -316,13 +316,7 @@ class CrossReg(DenoiserModel):
         self.gain_curve = None
         if config.gain_curve_bins:  # its statistics: sum w out y, sum w out^2 per node
             self.gain_curve = GainCurve(
-                config.gain_curve_bins,
-                config.gain_curve_range,
-                config.gain_curve_decay,
-                config.gain_curve_eps,
-                config.gain_curve_prior,
-                config.gain_curve_blur,
-                config.gain_curve_limit,
+                **{f.name: getattr(config, f"gain_curve_{f.name}") for f in fields(GainCurve)}
             )
             self.state_specs += (StateSpec("gain_curve", 2 * config.gain_curve_bins, size=one),)
 
