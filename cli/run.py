@@ -356,7 +356,7 @@ def run(
         typer.Option(
             "--online/--no-online",
             help="A model that learns while it runs (e.g. crossreg) takes its update step "
-            "(default), or keeps its weights frozen.",
+            "(default), or keeps what it learned frozen (its weights; crossreg's gain curve).",
         ),
     ] = True,
     learn_every: Annotated[
