@@ -132,13 +132,16 @@ def test_learn_every_and_no_online_reach_the_graph(tmp_path):
     seq = sample_sequences()[0]
     frames = [read_frame(p).buffers for p in find_frames(seq)]
     every4 = Denoiser("demo:crossreg", learn_every=4)
-    theta = []
+    theta, curve = [], []
     for frame in frames:
         every4.process(frame)
         theta.append(every4.state_value("theta").ravel())
+        curve.append(every4.state_value("gain_curve").ravel())
     assert float(every4.state_value("adam_t").ravel()[0]) == 2.0  # frames 0 and 4
-    moved = [not np.array_equal(a, b) for a, b in zip(theta[:-1], theta[1:], strict=True)]
-    assert moved == [False, False, False, True, False, False, False]
+    for learned in (theta, curve):  # the weights and the gain curve: frames 0 and 4 only
+        moved = [not np.array_equal(a, b) for a, b in zip(learned[:-1], learned[1:], strict=True)]
+        assert moved == [False, False, False, True, False, False, False]
+    assert np.abs(curve[0]).sum() > 0
     assert every4.online["layout"][0] == {"name": "encoders.0.0.weight", "shape": [8, 15, 3, 3]}
 
     runner = CliRunner()
