@@ -258,8 +258,8 @@ def _curve(den):
 
 def test_a_cut_keeps_the_learning_unless_asked():
     """reset() restarts the history, not the learning: the weights, Adam's moments and step
-    and the gain curve carry over (a size change too); reset(learning=True) and
-    relearn_at_cuts restart them."""
+    and the gain curve carry over (a size change and an unusable frame too);
+    reset(learning=True) and relearn_at_cuts restart them."""
     import numpy as np
 
     from rtdenoise.runtime import Denoiser
@@ -286,6 +286,11 @@ def test_a_cut_keeps_the_learning_unless_asked():
     np.testing.assert_array_equal(_curve(den), curve)
     assert steps == 3.0
     den.process({k: v[..., :48, :56] for k, v in frames[4].items()})  # a new size: a new history
+    np.testing.assert_array_equal(_theta_and_step(den)[0], learned)
+    np.testing.assert_array_equal(_curve(den), curve)
+    unusable = {**frames[5], "albedo": np.zeros_like(frames[5]["albedo"])}  # a missing pass
+    den.process(unusable)
+    assert den.last_guard.reset and den.last_guard.unusable == ("albedo",)
     np.testing.assert_array_equal(_theta_and_step(den)[0], learned)
     np.testing.assert_array_equal(_curve(den), curve)
     den.reset(learning=True)
