@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -277,25 +277,32 @@ def _layout_chosen(
     except ValueError as exc:
         raise InputError(str(exc)) from None
     nchwc16 = auto if asked is None else asked == "nchwc16"
-    written = with_layout(data, nchwc16)
-    if written is None:
-        return payload, ""
-    if not isinstance(payload, bytes):
-        options.add_session_config_entry(EXTERNAL_DATA_FOLDER, str(Path(payload).parent))
-    return written, "nchwc16" if nchwc16 else "plain"
+    written = _edited(payload, data, options, lambda d: with_layout(d, nchwc16))
+    return written, ("nchwc16" if nchwc16 else "plain") if written is not payload else ""
 
 
 def _optional_attributes_written(payload: str | bytes, options: ort.SessionOptions) -> str | bytes:
     """`payload`, or its bytes with the omitted optional attributes of its rtdenoise nodes
-    written out (`static_check.fill_optional_attributes`); a file's external data is then
-    looked up beside the file."""
+    written out (`static_check.fill_optional_attributes`)."""
     data = payload if isinstance(payload, bytes) else Path(payload).read_bytes()
-    filled = fill_optional_attributes(data)
-    if filled is None:
+    return _edited(payload, data, options, fill_optional_attributes)
+
+
+def _edited(
+    payload: str | bytes,
+    data: bytes,
+    options: ort.SessionOptions,
+    edit: Callable[[bytes], bytes | None],
+) -> str | bytes:
+    """`payload` (a path or bytes; `data` its bytes) as `edit` rewrites them, or `payload`
+    itself where `edit` changes nothing (None); the bytes of a file keep finding its external
+    data beside it."""
+    written = edit(data)
+    if written is None:
         return payload
     if not isinstance(payload, bytes):
         options.add_session_config_entry(EXTERNAL_DATA_FOLDER, str(Path(payload).parent))
-    return filled
+    return written
 
 
 def _state_device(session: ort.InferenceSession, providers: list[str]) -> tuple[str, int] | None:
